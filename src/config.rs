@@ -1,0 +1,147 @@
+//! The field's configuration: every knob, its default, and the checks that reject absurd values.
+
+use crate::LeafRule;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// The deepest directional quadtree level supported: a depth-20 cell is 2⁻²⁰ of the square on a
+/// side, about as fine as `f32` sample coordinates can still resolve uniformly.
+pub const MAX_DIRECTIONAL_DEPTH: u32 = 20;
+
+/// How a [`GuidingField`](crate::GuidingField) learns and how large it may grow.
+///
+/// Serializable (missing fields take their defaults) and checked by [`GuidingConfig::validate`],
+/// which [`GuidingField::new`](crate::GuidingField::new) calls.
+///
+/// ```
+/// use sdguide::{GuidingConfig, LeafRule};
+/// let config = GuidingConfig { rule: LeafRule::L1, ..GuidingConfig::default() };
+/// assert!(config.validate().is_ok());
+/// let bad = GuidingConfig { subdivision_threshold: 2.0, ..GuidingConfig::default() };
+/// assert_eq!(bad.validate().unwrap_err().field, "subdivision_threshold");
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GuidingConfig {
+    /// How recorded statistics become leaf masses (default [`LeafRule::L2`]).
+    pub rule: LeafRule,
+    /// `c` in the spatial split rule: a spatial leaf splits when it received more than
+    /// `c·sqrt(2^k)` samples in iteration `k` (default 12000). Must be finite and ≥ 1.
+    pub spatial_threshold: f32,
+    /// `ρ`: a directional cell is subdivided when its share of the tree's mass exceeds `ρ`,
+    /// and collapsed when it does not (default 0.01). Must be in `(0, 1)`.
+    pub subdivision_threshold: f32,
+    /// Deepest directional level (default and maximum [`MAX_DIRECTIONAL_DEPTH`]). Must be ≥ 1.
+    pub max_directional_depth: u32,
+    /// Fraction of every distribution spread uniformly over the sphere (default 0.01), so that no
+    /// direction has zero density — cells that saw no light this iteration may still carry some,
+    /// and a zero pdf there would bias the estimator. Must be in `(0, 1]`; 1 is uniform sampling.
+    pub uniform_fraction: f32,
+    /// Cap on interior nodes per directional quadtree (default 8192). Refinement splits the
+    /// cells with the largest share first and stops at the cap. Must be ≥ 1.
+    pub max_directional_nodes: u32,
+    /// Cap on spatial tree nodes (default 2²⁰). Spatial splits beyond it are refused and
+    /// counted in [`FieldStats`](crate::FieldStats). Must be ≥ 1.
+    pub max_spatial_nodes: u32,
+    /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
+    /// footprint above it is refused and counted. Directional refinement of existing leaves is
+    /// bounded by `max_directional_nodes` instead. Must be ≥ 64 KiB.
+    pub max_memory_bytes: u64,
+}
+
+impl Default for GuidingConfig {
+    fn default() -> Self {
+        Self {
+            rule: LeafRule::L2,
+            spatial_threshold: 12000.0,
+            subdivision_threshold: 0.01,
+            max_directional_depth: MAX_DIRECTIONAL_DEPTH,
+            uniform_fraction: 0.01,
+            max_directional_nodes: 8192,
+            max_spatial_nodes: 1 << 20,
+            max_memory_bytes: 1 << 30,
+        }
+    }
+}
+
+impl GuidingConfig {
+    /// Checks every field against its documented range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let check = |ok: bool, field: &'static str, value: String, requirement: &'static str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    field,
+                    value,
+                    requirement,
+                })
+            }
+        };
+        check(
+            self.spatial_threshold.is_finite() && self.spatial_threshold >= 1.0,
+            "spatial_threshold",
+            self.spatial_threshold.to_string(),
+            "a finite number >= 1",
+        )?;
+        check(
+            self.subdivision_threshold > 0.0 && self.subdivision_threshold < 1.0,
+            "subdivision_threshold",
+            self.subdivision_threshold.to_string(),
+            "a number in (0, 1)",
+        )?;
+        check(
+            (1..=MAX_DIRECTIONAL_DEPTH).contains(&self.max_directional_depth),
+            "max_directional_depth",
+            self.max_directional_depth.to_string(),
+            "an integer in 1..=20",
+        )?;
+        check(
+            self.uniform_fraction > 0.0 && self.uniform_fraction <= 1.0,
+            "uniform_fraction",
+            self.uniform_fraction.to_string(),
+            "a number in (0, 1]",
+        )?;
+        check(
+            self.max_directional_nodes >= 1,
+            "max_directional_nodes",
+            self.max_directional_nodes.to_string(),
+            "an integer >= 1",
+        )?;
+        check(
+            self.max_spatial_nodes >= 1,
+            "max_spatial_nodes",
+            self.max_spatial_nodes.to_string(),
+            "an integer >= 1",
+        )?;
+        check(
+            self.max_memory_bytes >= 64 * 1024,
+            "max_memory_bytes",
+            self.max_memory_bytes.to_string(),
+            "at least 65536",
+        )
+    }
+}
+
+/// A configuration value (or the scene bounds) outside its documented range.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConfigError {
+    /// The offending field, as named in [`GuidingConfig`] (or `"bounds"`).
+    pub field: &'static str,
+    /// The value that was given, printed.
+    pub value: String,
+    /// What the field must be.
+    pub requirement: &'static str,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "invalid `{}` = {}: must be {}",
+            self.field, self.value, self.requirement
+        )
+    }
+}
+
+impl std::error::Error for ConfigError {}

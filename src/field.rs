@@ -1,0 +1,311 @@
+//! The guiding field: a spatial tree whose leaves each own a directional quadtree.
+//!
+//! [`GuidingField`] is what a renderer holds. Render threads call [`GuidingField::record`] and
+//! [`GuidingField::distribution`] through `&self`, concurrently and without locks; between
+//! iterations the renderer calls [`GuidingField::refine`], which takes `&mut self`, so the type
+//! system guarantees no thread is recording or sampling while the trees change.
+
+use crate::moments::weights;
+use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
+use crate::spatial::SpatialTree;
+use crate::sphere::{INV_SPHERE_AREA, direction_to_square, square_to_direction};
+use crate::stats::RejectCounters;
+use crate::{
+    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason, Sample,
+};
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// Positions this far outside the bounding cube (relative to its side) are still recorded, into
+/// the nearest cell: hit points offset along a normal, or rounded, land just outside the bounds.
+const POSITION_TOLERANCE: f32 = 1e-3;
+
+/// A learned, continuously refined field of directional distributions over a scene.
+///
+/// ```
+/// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
+/// use glam::{Vec2, Vec3};
+///
+/// let mut field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default())?;
+/// // Light arrives from around +z. Record what a renderer sampling uniformly would have seen.
+/// let uniform_pdf = 1.0 / (4.0 * std::f32::consts::PI);
+/// for _iteration in 0..4 {
+///     for i in 0..10_000 {
+///         let u = Vec2::new((i % 100) as f32 + 0.5, (i / 100) as f32 + 0.5) / 100.0;
+///         let d = sdguide::sphere::square_to_direction(u);
+///         let light = if d.z > 0.9 { 10.0 } else { 0.0 };
+///         field.record(&Sample::new(Vec3::splat(0.5), d, light, uniform_pdf));
+///     }
+///     field.refine();
+/// }
+/// let dist = field.distribution(Vec3::splat(0.5));
+/// assert!(dist.pdf(Vec3::Z) > 5.0 * uniform_pdf);
+/// let (dir, pdf) = dist.sample(Vec2::new(0.3, 0.7));
+/// assert_eq!(pdf, dist.pdf(dir));
+/// # Ok::<(), sdguide::ConfigError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct GuidingField {
+    bounds: Aabb,
+    config: GuidingConfig,
+    spatial: SpatialTree,
+    trees: Vec<DirectionalTree>,
+    iteration: u32,
+    rejected: RejectCounters,
+    recorded_before: u64,
+    spatial_refused: u64,
+    directional_refused: u64,
+}
+
+impl GuidingField {
+    /// A field over `bounds` (the scene's bounding box) that has learned nothing yet: every
+    /// distribution is uniform over the sphere until the first [`refine`](Self::refine).
+    ///
+    /// Fails if `config` is out of range or `bounds` is not a finite box with some extent.
+    pub fn new(bounds: Aabb, config: GuidingConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        let extent = bounds.extent();
+        if !(bounds.min.is_finite() && bounds.max.is_finite())
+            || extent.min_element() < 0.0
+            || extent.max_element() <= 0.0
+        {
+            return Err(ConfigError {
+                field: "bounds",
+                value: format!("{bounds:?}"),
+                requirement: "finite, with min <= max and some extent",
+            });
+        }
+        Ok(Self {
+            bounds,
+            config,
+            spatial: SpatialTree::new(bounds.bounding_cube()),
+            trees: vec![DirectionalTree::default()],
+            iteration: 0,
+            rejected: RejectCounters::default(),
+            recorded_before: 0,
+            spatial_refused: 0,
+            directional_refused: 0,
+        })
+    }
+
+    /// Records one sample. Safe to call from any number of threads at once; never blocks.
+    ///
+    /// A sample that fails [`Sample::check`], or whose position lies outside the bounding cube
+    /// by more than 0.1% of its side, is rejected and counted in [`FieldStats::rejected`]; one
+    /// just outside is recorded into the nearest cell.
+    #[inline]
+    pub fn record(&self, sample: &Sample) {
+        if let Err(reason) = self.try_record(sample) {
+            self.rejected.count(reason);
+        }
+    }
+
+    /// Records every sample of a batch (see [`record`](Self::record)).
+    pub fn record_all(&self, samples: &[Sample]) {
+        for s in samples {
+            self.record(s);
+        }
+    }
+
+    #[inline]
+    fn try_record(&self, sample: &Sample) -> Result<(), RejectReason> {
+        let direction = sample.check()?;
+        let cube = self.spatial.cube();
+        let tolerance = Vec3::splat(POSITION_TOLERANCE * cube.extent().x);
+        let p = sample.position;
+        if !(p.cmpge(cube.min - tolerance) & p.cmple(cube.max + tolerance)).all() {
+            return Err(RejectReason::OutOfBounds);
+        }
+        let tree = &self.trees[self.spatial.leaf_at(p)];
+        tree.recording.record(
+            direction_to_square(direction),
+            weights(sample.value, sample.pdf),
+        );
+        Ok(())
+    }
+
+    /// The directional distribution to sample at `position`. Positions outside the bounds get
+    /// the nearest cell's distribution, so a renderer always receives a valid one.
+    #[inline]
+    pub fn distribution(&self, position: Vec3) -> DirectionalDistribution<'_> {
+        DirectionalDistribution {
+            tree: &self.trees[self.spatial.leaf_at(position)].sampling,
+        }
+    }
+
+    /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
+    /// distribution (by [`GuidingConfig::rule`]) and its next directional topology (split and
+    /// collapse by share, in parallel over leaves); then spatial leaves that received more
+    /// than `c·sqrt(2^k)` samples in iteration `k` split, the children starting from copies of
+    /// the parent's new distribution. Statistics restart for the next iteration. A leaf that
+    /// recorded nothing keeps its distribution.
+    pub fn refine(&mut self) {
+        let c = &self.config;
+        let params = RefineParams {
+            rule: c.rule,
+            uniform_fraction: f64::from(c.uniform_fraction),
+            subdivision_threshold: f64::from(c.subdivision_threshold),
+            max_depth: c.max_directional_depth,
+            max_nodes: c.max_directional_nodes,
+        };
+        let outcomes: Vec<RefineOutcome> = self
+            .trees
+            .par_iter_mut()
+            .map(|t| t.refine(&params))
+            .collect();
+        let counts: Vec<u64> = outcomes.iter().map(|o| o.samples).collect();
+        self.recorded_before += counts.iter().sum::<u64>();
+        self.directional_refused += outcomes.iter().map(|o| o.refused).sum::<u64>();
+
+        let threshold = f64::from(c.spatial_threshold) * 2f64.powf(0.5 * f64::from(self.iteration));
+        let budget = c.max_memory_bytes;
+        let mut bytes = self.bytes();
+        let trees = &mut self.trees;
+        self.spatial_refused +=
+            self.spatial
+                .split(&counts, threshold, c.max_spatial_nodes as usize, |leaf| {
+                    let cost = (tree_bytes(&trees[leaf]) + 2 * size_of::<u32>()) as u64;
+                    if bytes + cost > budget {
+                        return None;
+                    }
+                    bytes += cost;
+                    trees.push(trees[leaf].clone());
+                    Some(trees.len() - 1)
+                });
+        self.iteration += 1;
+    }
+
+    /// Size, depth and bookkeeping of the field.
+    pub fn stats(&self) -> FieldStats {
+        let leaves = self.spatial.leaves();
+        let mut s = FieldStats {
+            iteration: self.iteration,
+            spatial_nodes: self.spatial.node_count() as u64,
+            spatial_leaves: leaves.len() as u64,
+            spatial_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
+            rejected: self.rejected.get(),
+            spatial_splits_refused: self.spatial_refused,
+            directional_splits_refused: self.directional_refused,
+            bytes: self.bytes(),
+            ..FieldStats::default()
+        };
+        for t in &self.trees {
+            let cells = t.sampling.leaves();
+            s.directional_nodes += t.sampling.node_count() as u64;
+            s.directional_leaves += cells.len() as u64;
+            s.directional_depth = cells
+                .iter()
+                .map(|(c, _)| c.depth)
+                .fold(s.directional_depth, u32::max);
+            s.samples_recorded += t.recording.count();
+        }
+        s.samples_recorded_total = self.recorded_before + s.samples_recorded;
+        s
+    }
+
+    /// Every spatial leaf, for inspection: its box, its distribution and what it has recorded.
+    pub fn cells(&self) -> impl Iterator<Item = SpatialCell<'_>> {
+        self.spatial.leaves().into_iter().map(|l| SpatialCell {
+            bounds: l.bounds,
+            depth: l.depth,
+            tree: &self.trees[l.leaf],
+        })
+    }
+
+    /// The box the field was created with.
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// The configuration the field runs with.
+    pub fn config(&self) -> &GuidingConfig {
+        &self.config
+    }
+
+    /// Completed iterations (calls to [`refine`](Self::refine)).
+    pub fn iteration(&self) -> u32 {
+        self.iteration
+    }
+
+    fn bytes(&self) -> u64 {
+        (self.spatial.bytes() + self.trees.iter().map(tree_bytes).sum::<usize>()) as u64
+    }
+}
+
+/// The heap and inline bytes of one spatial leaf's directional tree.
+fn tree_bytes(t: &DirectionalTree) -> usize {
+    t.bytes() + size_of::<DirectionalTree>()
+}
+
+/// A spatial leaf, as [`GuidingField::cells`] shows it.
+#[derive(Clone, Copy, Debug)]
+pub struct SpatialCell<'a> {
+    /// The leaf's box.
+    pub bounds: Aabb,
+    /// Its depth in the spatial tree (the root is 0).
+    pub depth: u32,
+    tree: &'a DirectionalTree,
+}
+
+impl<'a> SpatialCell<'a> {
+    /// The distribution queries at positions in this cell receive.
+    pub fn distribution(&self) -> DirectionalDistribution<'a> {
+        DirectionalDistribution {
+            tree: &self.tree.sampling,
+        }
+    }
+
+    /// The leaves of the current iteration's recording topology and their moments.
+    pub fn recorded(&self) -> Vec<(DirectionalCell, Moments)> {
+        self.tree.recording.leaves()
+    }
+}
+
+/// A piecewise-constant distribution over the sphere, borrowed from a [`GuidingField`].
+///
+/// Cheap to create and to copy; `sample` and `pdf` neither allocate nor lock.
+#[derive(Clone, Copy, Debug)]
+pub struct DirectionalDistribution<'a> {
+    tree: &'a SamplingTree,
+}
+
+impl DirectionalDistribution<'_> {
+    /// Draws a direction from two uniform numbers `u ∈ [0,1)²` (clamped into that range).
+    /// Returns the unit direction and its solid-angle density, which equals
+    /// [`pdf`](Self::pdf) of the returned direction exactly.
+    #[inline]
+    pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
+        let (s, pdf, cell) = self.tree.sample(u);
+        let direction = square_to_direction(s);
+        // The round trip through the sphere may move a point lying within rounding distance of
+        // a cell border into the neighbour; report the density of the cell `pdf` will find.
+        let pdf = match square_of(direction) {
+            Some(back) if !cell.contains(back) => self.tree.pdf(back),
+            _ => pdf,
+        };
+        (direction, pdf * INV_SPHERE_AREA)
+    }
+
+    /// The solid-angle density of drawing `direction` (normalized here; a zero or non-finite
+    /// direction has density 0).
+    #[inline]
+    pub fn pdf(&self, direction: Vec3) -> f32 {
+        match square_of(direction) {
+            Some(s) => self.tree.pdf(s) * INV_SPHERE_AREA,
+            None => 0.0,
+        }
+    }
+
+    /// The leaves of the distribution with their probabilities (which sum to 1).
+    pub fn leaves(&self) -> Vec<(DirectionalCell, f32)> {
+        self.tree.leaves()
+    }
+}
+
+/// The square point of `direction` after normalizing it, or `None` for a zero or non-finite
+/// direction. `sample` and `pdf` both go through here, so they agree to the bit.
+#[inline]
+fn square_of(direction: Vec3) -> Option<Vec2> {
+    let len2 = direction.length_squared();
+    (len2 > 0.0 && len2.is_finite()).then(|| direction_to_square(direction / len2.sqrt()))
+}

@@ -1,0 +1,82 @@
+//! # sdguide — path guiding with variance-optimal SD-trees
+//!
+//! sdguide learns, while a renderer renders, where light comes from, and hands back a
+//! directional distribution to sample at every path vertex. Its structure is the SD-tree: a
+//! spatial binary tree over the scene with a directional quadtree over the sphere in every
+//! spatial leaf. What sets it apart is the leaf rule: every cell keeps the sum *and the sum of
+//! squares* of its samples, and leaf masses follow the optimal l2 rule
+//! `mass ∝ sqrt(|C|·Σ v²/p)`, which minimizes the variance of the importance-sampling
+//! estimator (Pantaleoni & Heitz, "Notes on optimal approximations for importance sampling").
+//!
+//! ## Data flow
+//!
+//! ```text
+//!   record   render threads, &self, lock-free     Sample ─► spatial::leaf_at ─► quadtree leaf moments
+//!   refine   between iterations, &mut self        moments ─► rule masses ─► sampling tree + new topology
+//!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω)
+//! ```
+//!
+//! ```
+//! use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
+//! use glam::{Vec2, Vec3};
+//!
+//! let mut field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default())?;
+//! for _iteration in 0..3 {
+//!     // Render: at each path vertex, guide the direction...
+//!     let dist = field.distribution(Vec3::new(0.2, 0.5, 0.5));
+//!     let (direction, pdf) = dist.sample(Vec2::new(0.25, 0.75));
+//!     // ...trace, and once the path is done, record what arrived from there.
+//!     let radiance = 1.0;
+//!     field.record(&Sample::new(Vec3::new(0.2, 0.5, 0.5), direction, radiance, pdf));
+//!     // Between passes: learn.
+//!     field.refine();
+//! }
+//! assert_eq!(field.stats().iteration, 3);
+//! # Ok::<(), sdguide::ConfigError>(())
+//! ```
+//!
+//! ## Modules
+//!
+//! - [`sphere`]: the equal-area map between directions and the unit square.
+//! - `moments`: the per-cell sums `Σ v/p`, `Σ v²/p`, `n` and their lock-free accumulation.
+//! - `rule`: [`LeafRule`], how moments become leaf masses.
+//! - `quadtree`: the double-buffered directional quadtree (sample, pdf, record, refine).
+//! - `spatial`: the binary tree over the scene's bounding cube.
+//! - `field`: [`GuidingField`], which ties them together.
+//! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
+//!   out ([`FieldStats`]).
+
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+mod bounds;
+mod config;
+mod field;
+mod moments;
+mod quadtree;
+mod rule;
+mod sample;
+mod spatial;
+pub mod sphere;
+mod stats;
+
+pub use bounds::Aabb;
+pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
+pub use field::{DirectionalDistribution, GuidingField, SpatialCell};
+pub use moments::Moments;
+pub use quadtree::DirectionalCell;
+pub use rule::LeafRule;
+pub use sample::{RejectReason, Sample};
+pub use stats::{FieldStats, Rejections};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn field_is_send_and_sync() {
+        fn check<T: Send + Sync>() {}
+        check::<GuidingField>();
+        check::<DirectionalDistribution<'static>>();
+    }
+}

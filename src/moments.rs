@@ -1,0 +1,112 @@
+//! Per-cell sample moments: `S1 = Σ v/p`, `S2 = Σ v²/p` and the count `n`.
+//!
+//! These three sums are all the field learns from. [`Moments`] is a plain snapshot;
+//! [`AtomicMoments`] is what a directional leaf holds while render threads record into it:
+//! lock-free adds, so any number of threads can record at once. The sums are `f64` — inputs are
+//! `f32`, so `v²/p` of any finite input is finite in `f64`, and long iterations do not stall the
+//! way an `f32` sum does once it passes 2²⁴ times the typical increment.
+
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// A snapshot of one cell's recorded statistics.
+///
+/// ```
+/// use sdguide::Moments;
+/// let mut m = Moments::default();
+/// m.add(2.0, 0.5); // v = 2, p = 0.5
+/// assert_eq!((m.sum, m.sum_sq, m.count), (4.0, 8.0, 1));
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Moments {
+    /// `S1 = Σ v/p`: estimates `N·∫ v dω` over the cell.
+    pub sum: f64,
+    /// `S2 = Σ v²/p`: estimates `N·∫ v² dω` over the cell, noise of `v` included.
+    pub sum_sq: f64,
+    /// `n`: the number of samples, zero-valued ones included.
+    pub count: u64,
+}
+
+impl Moments {
+    /// Adds one sample of value `v` drawn with solid-angle density `p`.
+    pub fn add(&mut self, v: f32, p: f32) {
+        let (w1, w2) = weights(v, p);
+        self.sum += w1;
+        self.sum_sq += w2;
+        self.count += 1;
+    }
+}
+
+/// `(v/p, v²/p)` in `f64`.
+#[inline]
+pub(crate) fn weights(v: f32, p: f32) -> (f64, f64) {
+    let w1 = f64::from(v) / f64::from(p);
+    (w1, w1 * f64::from(v))
+}
+
+/// An `f64` that threads can add to concurrently (a compare-and-swap loop on its bits).
+#[derive(Debug, Default)]
+struct AtomicF64(AtomicU64);
+
+impl AtomicF64 {
+    #[inline]
+    fn add(&self, x: f64) {
+        // Relaxed suffices: the sums are only read after `refine` has taken `&mut self`, which
+        // synchronizes with every recording thread through whatever joined them.
+        let mut old = self.0.load(Ordering::Relaxed);
+        loop {
+            let new = (f64::from_bits(old) + x).to_bits();
+            match self
+                .0
+                .compare_exchange_weak(old, new, Ordering::Relaxed, Ordering::Relaxed)
+            {
+                Ok(_) => return,
+                Err(current) => old = current,
+            }
+        }
+    }
+
+    fn get(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+}
+
+/// The moments of one directional leaf, updated in place by recording threads.
+#[derive(Debug, Default)]
+pub(crate) struct AtomicMoments {
+    sum: AtomicF64,
+    sum_sq: AtomicF64,
+    count: AtomicU64,
+}
+
+impl AtomicMoments {
+    /// Adds one sample with precomputed weights `(v/p, v²/p)`.
+    #[inline]
+    pub(crate) fn add(&self, (w1, w2): (f64, f64)) {
+        // A zero-valued sample still counts; skipping the float adds keeps dark cells cheap.
+        if w1 != 0.0 {
+            self.sum.add(w1);
+            self.sum_sq.add(w2);
+        }
+        self.count.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn get(&self) -> Moments {
+        Moments {
+            sum: self.sum.get(),
+            sum_sq: self.sum_sq.get(),
+            count: self.count.load(Ordering::Relaxed),
+        }
+    }
+}
+
+impl Clone for AtomicMoments {
+    fn clone(&self) -> Self {
+        let m = self.get();
+        Self {
+            sum: AtomicF64(AtomicU64::new(m.sum.to_bits())),
+            sum_sq: AtomicF64(AtomicU64::new(m.sum_sq.to_bits())),
+            count: AtomicU64::new(m.count),
+        }
+    }
+}

@@ -1,0 +1,499 @@
+//! The directional quadtree over the unit square (the sphere, through [`crate::sphere`]).
+//!
+//! Each spatial leaf owns one [`DirectionalTree`], double-buffered as the design asks:
+//!
+//! - a [`SamplingTree`]: read-only during an iteration, it holds for each node the probability of
+//!   each of its four quadrants. `sample` and `pdf` descend it without locks or allocation.
+//! - a [`RecordingTree`]: the topology for the current iteration with an [`AtomicMoments`] per
+//!   leaf. Recording descends it and adds to one leaf; interior sums are never kept.
+//!
+//! [`DirectionalTree::refine`] ends an iteration: it turns the leaf moments into masses with the
+//! active [`LeafRule`], mixes in the uniform floor, sums interior masses bottom-up into the next
+//! sampling tree, and derives the next recording topology from the same masses (split cells
+//! whose share exceeds ρ, collapse those that do not).
+//!
+//! Quadrants are numbered `q = ix + 2·iy`, with `ix = [s.x ≥ ½]` and `iy = [s.y ≥ ½]` in the
+//! node's local frame. Nodes are stored so that a child always comes after its parent, which
+//! lets bottom-up passes run as one reverse sweep.
+
+use crate::moments::AtomicMoments;
+use crate::sphere::ONE_MINUS_EPSILON;
+use crate::{LeafRule, Moments};
+use glam::Vec2;
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+/// In a [`RecordingTree`] node, marks a child slot as a leaf; the low bits index its moments.
+const LEAF_BIT: u32 = 1 << 31;
+
+/// In a [`SamplingTree`] node, the child index of a leaf (the root is node 0, nobody's child).
+const NO_CHILD: u32 = 0;
+
+/// One interior node of a sampling tree: 32 bytes, two to a cache line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+struct SamplingNode {
+    /// Probability of each quadrant given this node (they sum to 1 up to rounding).
+    prob: [f32; 4],
+    /// Index of each quadrant's node, or [`NO_CHILD`] for a leaf.
+    child: [u32; 4],
+}
+
+/// The quadrant of `s ∈ [0,1)²` and `s` rescaled into that quadrant.
+#[inline]
+fn quadrant(s: Vec2) -> (usize, Vec2) {
+    let ix = s.x >= 0.5;
+    let iy = s.y >= 0.5;
+    // Doubling and subtracting 1 are exact in floating point: no drift over 20 levels.
+    let local = Vec2::new(
+        2.0 * s.x - f32::from(u8::from(ix)),
+        2.0 * s.y - f32::from(u8::from(iy)),
+    );
+    (usize::from(ix) | usize::from(iy) << 1, local)
+}
+
+/// `4·p_q / Σp`: the density factor of descending into quadrant `q` of a node. Sampling and
+/// pdf evaluation both call this, so the pdf a sample returns is bit-identical to `pdf`'s.
+#[inline]
+fn density_factor(prob: &[f32; 4], q: usize) -> f32 {
+    4.0 * prob[q] / ((prob[0] + prob[2]) + (prob[1] + prob[3]))
+}
+
+/// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0.
+#[inline]
+fn unit(x: f32) -> f32 {
+    x.max(0.0).min(ONE_MINUS_EPSILON)
+}
+
+/// A directional cell: the square `[origin, origin + size)` at `depth` (the root's children are
+/// at depth 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DirectionalCell {
+    /// The cell's corner with the smallest coordinates, on the unit square.
+    pub origin: Vec2,
+    /// The cell's side: `2^-depth`.
+    pub size: f32,
+    /// The cell's level in the quadtree.
+    pub depth: u32,
+}
+
+impl DirectionalCell {
+    /// The fraction of the square (and of the sphere) the cell covers.
+    pub fn area(&self) -> f64 {
+        f64::from(self.size) * f64::from(self.size)
+    }
+
+    pub(crate) fn contains(&self, s: Vec2) -> bool {
+        s.cmpge(self.origin).all() && (s - self.origin).cmplt(Vec2::splat(self.size)).all()
+    }
+
+    fn child(&self, q: usize) -> DirectionalCell {
+        let half = 0.5 * self.size;
+        let offset = Vec2::new((q & 1) as f32, (q >> 1) as f32) * half;
+        DirectionalCell {
+            origin: self.origin + offset,
+            size: half,
+            depth: self.depth + 1,
+        }
+    }
+
+    const ROOT: DirectionalCell = DirectionalCell {
+        origin: Vec2::ZERO,
+        size: 1.0,
+        depth: 0,
+    };
+}
+
+/// The read-only, piecewise-constant density on the square that queries use.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct SamplingTree {
+    nodes: Box<[SamplingNode]>,
+}
+
+impl SamplingTree {
+    /// The uniform density: one root with four equal leaves.
+    pub(crate) fn uniform() -> Self {
+        Self {
+            nodes: Box::new([SamplingNode {
+                prob: [0.25; 4],
+                child: [NO_CHILD; 4],
+            }]),
+        }
+    }
+
+    /// Draws a point from `u ∈ [0,1)²`: returns the point, its density on the square and the
+    /// leaf it fell in. `u` is rescaled at every level, so two numbers serve the whole descent.
+    #[inline]
+    pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, DirectionalCell) {
+        let mut u = Vec2::new(unit(u.x), unit(u.y));
+        let mut cell = DirectionalCell::ROOT;
+        let mut pdf = 1.0;
+        let mut node = 0usize;
+        loop {
+            let n = &self.nodes[node];
+            let p = &n.prob;
+            // Choose the x half by the mass of each column, then the y half inside that column.
+            let (left, right) = (p[0] + p[2], p[1] + p[3]);
+            let tx = u.x * (left + right);
+            let ix = usize::from(tx >= left);
+            u.x = unit(if ix == 0 {
+                tx / left
+            } else {
+                (tx - left) / right
+            });
+            let (lo, hi) = (p[ix], p[ix + 2]);
+            let ty = u.y * (lo + hi);
+            let iy = usize::from(ty >= lo);
+            u.y = unit(if iy == 0 { ty / lo } else { (ty - lo) / hi });
+            let q = ix | iy << 1;
+            pdf *= density_factor(p, q);
+            cell = cell.child(q);
+            match n.child[q] {
+                NO_CHILD => return (cell.origin + u * cell.size, pdf, cell),
+                c => node = c as usize,
+            }
+        }
+    }
+
+    /// The density on the square at `s ∈ [0,1)²`, and the leaf that holds `s`.
+    #[inline]
+    pub(crate) fn pdf(&self, s: Vec2) -> f32 {
+        let mut s = s;
+        let mut pdf = 1.0;
+        let mut node = 0usize;
+        loop {
+            let n = &self.nodes[node];
+            let (q, local) = quadrant(s);
+            pdf *= density_factor(&n.prob, q);
+            match n.child[q] {
+                NO_CHILD => return pdf,
+                c => {
+                    node = c as usize;
+                    s = local;
+                }
+            }
+        }
+    }
+
+    /// Every leaf with its probability (its mass), in depth-first order.
+    pub(crate) fn leaves(&self) -> Vec<(DirectionalCell, f32)> {
+        let mut out = Vec::new();
+        let mut stack = vec![(0usize, DirectionalCell::ROOT, 1.0f32)];
+        while let Some((node, cell, mass)) = stack.pop() {
+            let n = &self.nodes[node];
+            let total = (n.prob[0] + n.prob[2]) + (n.prob[1] + n.prob[3]);
+            for q in 0..4 {
+                let m = mass * n.prob[q] / total;
+                match n.child[q] {
+                    NO_CHILD => out.push((cell.child(q), m)),
+                    c => stack.push((c as usize, cell.child(q), m)),
+                }
+            }
+        }
+        out
+    }
+
+    pub(crate) fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    pub(crate) fn bytes(&self) -> usize {
+        std::mem::size_of_val(&*self.nodes)
+    }
+}
+
+/// The topology of the current iteration and the moments recorded into its leaves.
+#[derive(Clone, Debug)]
+pub(crate) struct RecordingTree {
+    /// Child slots: an interior node's index, or `LEAF_BIT | index into moments`.
+    nodes: Box<[[u32; 4]]>,
+    moments: Box<[AtomicMoments]>,
+}
+
+impl RecordingTree {
+    /// One root with four empty leaves.
+    fn root() -> Self {
+        Self::from_nodes(vec![[NO_CHILD; 4]])
+    }
+
+    /// Builds a tree from interior nodes whose leaf slots are marked `NO_CHILD`: numbers the
+    /// leaves in node order and gives each a zeroed accumulator.
+    fn from_nodes(mut nodes: Vec<[u32; 4]>) -> Self {
+        let mut leaves = 0u32;
+        for slot in nodes.iter_mut().flatten() {
+            if *slot == NO_CHILD {
+                *slot = LEAF_BIT | leaves;
+                leaves += 1;
+            }
+        }
+        Self {
+            nodes: nodes.into_boxed_slice(),
+            moments: (0..leaves).map(|_| AtomicMoments::default()).collect(),
+        }
+    }
+
+    /// Adds weights `(v/p, v²/p)` to the leaf that holds `s`.
+    #[inline]
+    pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
+        let mut s = s;
+        let mut node = 0usize;
+        loop {
+            let (q, local) = quadrant(s);
+            let slot = self.nodes[node][q];
+            if slot & LEAF_BIT != 0 {
+                self.moments[(slot & !LEAF_BIT) as usize].add(weights);
+                return;
+            }
+            node = slot as usize;
+            s = local;
+        }
+    }
+
+    /// Every leaf with its recorded moments, in depth-first order.
+    pub(crate) fn leaves(&self) -> Vec<(DirectionalCell, Moments)> {
+        let mut out = Vec::new();
+        let mut stack = vec![(0usize, DirectionalCell::ROOT)];
+        while let Some((node, cell)) = stack.pop() {
+            for (q, &slot) in self.nodes[node].iter().enumerate() {
+                if slot & LEAF_BIT != 0 {
+                    out.push((
+                        cell.child(q),
+                        self.moments[(slot & !LEAF_BIT) as usize].get(),
+                    ));
+                } else {
+                    stack.push((slot as usize, cell.child(q)));
+                }
+            }
+        }
+        out
+    }
+
+    /// Total samples recorded into the tree.
+    pub(crate) fn count(&self) -> u64 {
+        self.moments.iter().map(|m| m.get().count).sum()
+    }
+
+    pub(crate) fn bytes(&self) -> usize {
+        std::mem::size_of_val(&*self.nodes) + std::mem::size_of_val(&*self.moments)
+    }
+
+    /// The depth of every node (the root is 0), from one forward sweep.
+    fn depths(&self) -> Vec<u32> {
+        let mut depth = vec![0u32; self.nodes.len()];
+        for i in 0..self.nodes.len() {
+            for &slot in &self.nodes[i] {
+                if slot & LEAF_BIT == 0 {
+                    depth[slot as usize] = depth[i] + 1;
+                }
+            }
+        }
+        depth
+    }
+}
+
+/// How the recorded statistics of one iteration become a distribution and a new topology.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RefineParams {
+    pub rule: LeafRule,
+    pub uniform_fraction: f64,
+    pub subdivision_threshold: f64,
+    pub max_depth: u32,
+    pub max_nodes: u32,
+}
+
+/// What one directional refine did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct RefineOutcome {
+    /// Samples the tree had recorded in the iteration that ended.
+    pub samples: u64,
+    /// Cells that qualified for a split but were refused by `max_nodes`.
+    pub refused: u64,
+}
+
+/// A spatial leaf's directional knowledge: what queries sample, and what recording fills.
+#[derive(Clone, Debug)]
+pub(crate) struct DirectionalTree {
+    pub(crate) sampling: SamplingTree,
+    pub(crate) recording: RecordingTree,
+}
+
+impl Default for DirectionalTree {
+    fn default() -> Self {
+        Self {
+            sampling: SamplingTree::uniform(),
+            recording: RecordingTree::root(),
+        }
+    }
+}
+
+/// A candidate cell during refinement, ordered by its share of the mass.
+struct Candidate {
+    share: f64,
+    cell_depth: u32,
+    /// The recording-tree node this cell was in the ended iteration, if it was interior there.
+    old_node: Option<u32>,
+    /// The new node and quadrant that will point to this cell.
+    parent: (u32, usize),
+}
+
+impl PartialEq for Candidate {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for Candidate {}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Candidate {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.share.total_cmp(&other.share)
+    }
+}
+
+impl DirectionalTree {
+    /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
+    /// (empty) recording topology. A tree that recorded nothing keeps what it had learned.
+    pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
+        let samples = self.recording.count();
+        if samples == 0 {
+            return RefineOutcome::default();
+        }
+        let rec = &self.recording;
+        let depth = rec.depths();
+
+        // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j.
+        let mut leaf_mass = vec![0.0f64; rec.moments.len()];
+        for (i, slots) in rec.nodes.iter().enumerate() {
+            for &slot in slots {
+                if slot & LEAF_BIT != 0 {
+                    let k = (slot & !LEAF_BIT) as usize;
+                    let m = rec.moments[k].get();
+                    let area = 0.25f64.powi(depth[i] as i32 + 1);
+                    leaf_mass[k] = params.rule.mass(area, m.sum, m.sum_sq);
+                }
+            }
+        }
+        let total: f64 = leaf_mass.iter().sum();
+        let lit = total > 0.0 && total.is_finite();
+
+        // 2. Per node and quadrant: the learned share α (drives refinement) and the sampled mass
+        //    (1−ε)·α + ε·|C| (drives sampling), summed bottom-up in one reverse sweep.
+        let eps = if lit { params.uniform_fraction } else { 1.0 };
+        let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
+        let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
+        for i in (0..rec.nodes.len()).rev() {
+            let area = 0.25f64.powi(depth[i] as i32 + 1);
+            for (q, &slot) in rec.nodes[i].iter().enumerate() {
+                let (s, m) = if slot & LEAF_BIT != 0 {
+                    let a = if lit {
+                        leaf_mass[(slot & !LEAF_BIT) as usize] / total
+                    } else {
+                        0.0
+                    };
+                    (a, (1.0 - eps) * a + eps * area)
+                } else {
+                    let c = slot as usize;
+                    (share[c].iter().sum(), mass[c].iter().sum())
+                };
+                share[i][q] = s;
+                mass[i][q] = m;
+            }
+        }
+        let sampling = SamplingTree {
+            nodes: rec
+                .nodes
+                .iter()
+                .zip(&mass)
+                .map(|(slots, m)| {
+                    let node_total: f64 = m.iter().sum();
+                    SamplingNode {
+                        prob: m.map(|x| (x / node_total) as f32),
+                        child: slots.map(|s| if s & LEAF_BIT != 0 { NO_CHILD } else { s }),
+                    }
+                })
+                .collect(),
+        };
+
+        // 3. The next topology: split the largest shares first while they exceed ρ.
+        let (recording, refused) = self.refined_topology(&share, params);
+        self.sampling = sampling;
+        self.recording = recording;
+        RefineOutcome { samples, refused }
+    }
+
+    /// Grows a new topology from the root: a cell whose share exceeds ρ becomes interior (its
+    /// children's shares come from the ended iteration where it was interior, or split evenly
+    /// where it was a leaf — so one refine can add several levels); every other cell is a leaf,
+    /// which collapses whatever lay below it.
+    fn refined_topology(&self, share: &[[f64; 4]], params: &RefineParams) -> (RecordingTree, u64) {
+        let old = &self.recording.nodes;
+        let mut nodes: Vec<[u32; 4]> = vec![[NO_CHILD; 4]];
+        let mut heap = BinaryHeap::new();
+        let push_children =
+            |heap: &mut BinaryHeap<Candidate>, new: u32, old_node: Option<u32>, s: f64, d: u32| {
+                for q in 0..4 {
+                    let (share, old_child) = match old_node {
+                        Some(o) => {
+                            let slot = old[o as usize][q];
+                            (share[o as usize][q], (slot & LEAF_BIT == 0).then_some(slot))
+                        }
+                        None => (s / 4.0, None),
+                    };
+                    heap.push(Candidate {
+                        share,
+                        cell_depth: d + 1,
+                        old_node: old_child,
+                        parent: (new, q),
+                    });
+                }
+            };
+        push_children(&mut heap, 0, Some(0), 1.0, 0);
+        let mut refused = 0u64;
+        while let Some(c) = heap.pop() {
+            if c.share <= params.subdivision_threshold {
+                break;
+            }
+            if c.cell_depth >= params.max_depth {
+                continue;
+            }
+            if nodes.len() >= params.max_nodes as usize {
+                refused += 1;
+                continue;
+            }
+            let new = nodes.len() as u32;
+            nodes.push([NO_CHILD; 4]);
+            nodes[c.parent.0 as usize][c.parent.1] = new;
+            push_children(&mut heap, new, c.old_node, c.share, c.cell_depth);
+        }
+        (RecordingTree::from_nodes(nodes), refused)
+    }
+
+    /// Bytes held by both buffers.
+    pub(crate) fn bytes(&self) -> usize {
+        self.sampling.bytes() + self.recording.bytes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn node_is_half_a_cache_line() {
+        assert_eq!(std::mem::size_of::<SamplingNode>(), 32);
+    }
+
+    #[test]
+    fn uniform_tree_has_constant_density() {
+        let t = SamplingTree::uniform();
+        for s in [Vec2::ZERO, Vec2::new(0.7, 0.2), Vec2::splat(0.99)] {
+            assert_eq!(t.pdf(s), 1.0);
+        }
+        let (p, pdf, cell) = t.sample(Vec2::new(0.3, 0.8));
+        assert_eq!(pdf, 1.0);
+        assert!(cell.contains(p));
+    }
+}

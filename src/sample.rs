@@ -1,0 +1,76 @@
+//! What a renderer records at a path vertex, and the checks that keep bad values out of the field.
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// One recorded path vertex: at `position`, light of (scalar) value `value` arrived from
+/// `direction`, which the renderer drew with solid-angle density `pdf`.
+///
+/// `pdf` must be the density the direction was *actually* drawn with — the full mixture pdf of
+/// BSDF sampling and guiding — since the field weights every sample by `1/pdf`.
+///
+/// ```
+/// use sdguide::Sample;
+/// use glam::Vec3;
+/// let s = Sample::new(Vec3::new(0.5, 0.2, 0.1), Vec3::Z, 3.0, 0.25);
+/// assert!(s.check().is_ok());
+/// assert!(Sample::new(Vec3::ZERO, Vec3::Z, f32::NAN, 0.25).check().is_err());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sample {
+    /// Where the light arrived (world space).
+    pub position: Vec3,
+    /// The direction it arrived from, pointing away from `position`. Need not be normalized.
+    pub direction: Vec3,
+    /// A non-negative estimate of what arrived, usually the luminance of the incident radiance.
+    pub value: f32,
+    /// The solid-angle density with which `direction` was drawn: finite and positive.
+    pub pdf: f32,
+}
+
+impl Sample {
+    /// A sample from its four parts.
+    pub const fn new(position: Vec3, direction: Vec3, value: f32, pdf: f32) -> Self {
+        Self {
+            position,
+            direction,
+            value,
+            pdf,
+        }
+    }
+
+    /// Checks the sample and returns its unit direction, or why the field rejects it.
+    #[inline]
+    pub fn check(&self) -> Result<Vec3, RejectReason> {
+        if !self.position.is_finite() {
+            return Err(RejectReason::NonFinitePosition);
+        }
+        if !(self.value >= 0.0 && self.value.is_finite()) {
+            return Err(RejectReason::BadValue);
+        }
+        if !(self.pdf > 0.0 && self.pdf.is_finite()) {
+            return Err(RejectReason::BadPdf);
+        }
+        let len2 = self.direction.length_squared();
+        if !(len2 > 0.0 && len2.is_finite()) {
+            return Err(RejectReason::BadDirection);
+        }
+        Ok(self.direction / len2.sqrt())
+    }
+}
+
+/// Why a recorded sample was rejected. Each reason has its own counter in
+/// [`FieldStats::rejected`](crate::FieldStats::rejected).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RejectReason {
+    /// A position coordinate was NaN or infinite.
+    NonFinitePosition,
+    /// The position lay outside the field's bounding cube (beyond a small tolerance).
+    OutOfBounds,
+    /// The direction was zero, NaN or infinite.
+    BadDirection,
+    /// The value was negative, NaN or infinite.
+    BadValue,
+    /// The pdf was zero, negative, NaN or infinite.
+    BadPdf,
+}

@@ -1,0 +1,179 @@
+//! The spatial binary tree over the scene's bounding cube.
+//!
+//! A node is one `u32`: either `LEAF_BIT | index` of the directional tree it owns, or the index
+//! of the first of its two children (stored side by side). Children split their parent at the
+//! midpoint of one axis, cycling x → y → z with depth, so a node's box is never stored: the
+//! descent halves the root cube as it goes. Four bytes per node keep the whole tree in cache.
+
+use crate::Aabb;
+use glam::Vec3;
+use std::collections::BinaryHeap;
+
+const LEAF_BIT: u32 = 1 << 31;
+
+/// A leaf of the spatial tree as inspection sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct SpatialLeaf {
+    /// Index of the leaf's directional tree.
+    pub leaf: usize,
+    pub bounds: Aabb,
+    pub depth: u32,
+}
+
+/// The binary tree and the cube it partitions.
+#[derive(Clone, Debug)]
+pub(crate) struct SpatialTree {
+    cube: Aabb,
+    nodes: Vec<u32>,
+}
+
+impl SpatialTree {
+    /// A tree with one leaf (directional tree 0) covering `cube`.
+    pub(crate) fn new(cube: Aabb) -> Self {
+        Self {
+            cube,
+            nodes: vec![LEAF_BIT],
+        }
+    }
+
+    /// The cube the tree partitions.
+    pub(crate) fn cube(&self) -> Aabb {
+        self.cube
+    }
+
+    /// The directional tree of the leaf containing `p`. Points outside the cube go to the
+    /// nearest leaf along each split; NaN coordinates go to the low side.
+    #[inline]
+    pub(crate) fn leaf_at(&self, p: Vec3) -> usize {
+        let p = p.to_array();
+        let mut lo = self.cube.min.to_array();
+        let mut size = self.cube.extent().to_array();
+        let mut node = self.nodes[0];
+        let mut axis = 0;
+        while node & LEAF_BIT == 0 {
+            size[axis] *= 0.5;
+            let mid = lo[axis] + size[axis];
+            let right = p[axis] >= mid;
+            if right {
+                lo[axis] = mid;
+            }
+            node = self.nodes[node as usize + usize::from(right)];
+            axis = if axis == 2 { 0 } else { axis + 1 };
+        }
+        (node & !LEAF_BIT) as usize
+    }
+
+    /// Splits busy leaves: a leaf with `count > threshold` samples splits in two, each child
+    /// taking half the count and splitting again while that still exceeds the threshold. The
+    /// busiest leaves go first; a split is refused when the tree would pass `max_nodes` or when
+    /// `new_leaf(parent)` (which creates the right child's directional tree) returns `None`.
+    /// The left child keeps the parent's directional tree. Returns the number of refusals.
+    pub(crate) fn split(
+        &mut self,
+        counts: &[u64],
+        threshold: f64,
+        max_nodes: usize,
+        mut new_leaf: impl FnMut(usize) -> Option<usize>,
+    ) -> u64 {
+        let mut heap: BinaryHeap<(u64, usize)> = self
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| *n & LEAF_BIT != 0)
+            .map(|(i, n)| (counts[(n & !LEAF_BIT) as usize], i))
+            .filter(|&(count, _)| count as f64 > threshold)
+            .collect();
+        let mut refused = 0;
+        while let Some((count, node)) = heap.pop() {
+            let leaf = (self.nodes[node] & !LEAF_BIT) as usize;
+            let right = if self.nodes.len() + 2 <= max_nodes {
+                new_leaf(leaf)
+            } else {
+                None
+            };
+            let Some(right) = right else {
+                refused += 1;
+                continue;
+            };
+            let first = self.nodes.len() as u32;
+            self.nodes.push(LEAF_BIT | leaf as u32);
+            self.nodes.push(LEAF_BIT | right as u32);
+            self.nodes[node] = first;
+            let half = count / 2;
+            if half as f64 > threshold {
+                heap.push((half, first as usize));
+                heap.push((count - half, first as usize + 1));
+            }
+        }
+        refused
+    }
+
+    /// Every leaf with its box and depth.
+    pub(crate) fn leaves(&self) -> Vec<SpatialLeaf> {
+        let mut out = Vec::new();
+        let mut stack = vec![(0usize, self.cube, 0u32)];
+        while let Some((node, bounds, depth)) = stack.pop() {
+            let n = self.nodes[node];
+            if n & LEAF_BIT != 0 {
+                out.push(SpatialLeaf {
+                    leaf: (n & !LEAF_BIT) as usize,
+                    bounds,
+                    depth,
+                });
+                continue;
+            }
+            let axis = (depth % 3) as usize;
+            let mid = bounds.center()[axis];
+            let (mut lo, mut hi) = (bounds, bounds);
+            lo.max[axis] = mid;
+            hi.min[axis] = mid;
+            stack.push((n as usize, lo, depth + 1));
+            stack.push((n as usize + 1, hi, depth + 1));
+        }
+        out
+    }
+
+    pub(crate) fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    pub(crate) fn bytes(&self) -> usize {
+        std::mem::size_of_val(self.nodes.as_slice())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn split_cycles_axes_and_descends_to_the_right_leaf() {
+        let mut t = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
+        let mut next = 1;
+        // One leaf with 8 samples, threshold 1.5: splits until each leaf holds at most 1.
+        let refused = t.split(&[8], 1.5, usize::MAX, |_| {
+            next += 1;
+            Some(next - 1)
+        });
+        assert_eq!(refused, 0);
+        let leaves = t.leaves();
+        assert_eq!(leaves.len(), 8);
+        for l in &leaves {
+            assert_eq!(l.depth, 3);
+            assert!((l.bounds.extent() - Vec3::splat(0.5)).abs().max_element() < 1e-6);
+            assert_eq!(t.leaf_at(l.bounds.center()), l.leaf);
+        }
+    }
+
+    #[test]
+    fn node_cap_refuses_splits() {
+        let mut t = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
+        let mut next = 1;
+        let refused = t.split(&[1000], 1.0, 3, |_| {
+            next += 1;
+            Some(next - 1)
+        });
+        assert_eq!(t.node_count(), 3);
+        assert_eq!(refused, 2);
+    }
+}

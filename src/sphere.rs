@@ -1,0 +1,113 @@
+//! The equal-area cylindrical map between unit directions and the unit square.
+//!
+//! Every directional quadtree lives on the unit square `[0,1)²`; this module is the only place
+//! that knows how the square wraps the sphere. The map is
+//!
+//! ```text
+//!   s.x = (cos θ + 1) / 2        cos θ = ω.z
+//!   s.y = φ / 2π                 φ = atan2(ω.y, ω.x) in [0, 2π)
+//! ```
+//!
+//! in the world frame. It preserves area up to the constant 4π, so a density `p□` on the square
+//! is the solid-angle density `p□ / 4π` on the sphere: no Jacobian varies over the square, which
+//! keeps sample and pdf exact inverses of each other. The poles are the segments `s.x = 0` and
+//! `s.x = 1`; the φ seam is `s.y = 0 ≡ 1`.
+
+use glam::{Vec2, Vec3};
+use std::f32::consts::{PI, TAU};
+
+/// The constant Jacobian of the map: solid angle of the sphere (4π) per unit of square area.
+pub const SPHERE_AREA: f32 = 4.0 * PI;
+
+/// 1 / 4π: the solid-angle density of a uniform density on the square.
+pub const INV_SPHERE_AREA: f32 = 1.0 / SPHERE_AREA;
+
+/// The largest `f32` below 1: coordinates are clamped to `[0, ONE_MINUS_EPSILON]` so a point on
+/// the square always falls in exactly one cell.
+pub(crate) const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
+
+/// Maps a unit direction to its point on the unit square.
+///
+/// The direction must be normalized; the result lies in `[0, 1)²` (clamped against rounding).
+///
+/// ```
+/// use sdguide::sphere::{direction_to_square, square_to_direction};
+/// use glam::Vec3;
+/// let d = Vec3::new(0.3, -0.4, 0.5).normalize();
+/// let back = square_to_direction(direction_to_square(d));
+/// assert!((back - d).length() < 1e-6);
+/// ```
+#[inline]
+pub fn direction_to_square(d: Vec3) -> Vec2 {
+    let x = (d.z + 1.0) * 0.5;
+    let mut phi = d.y.atan2(d.x);
+    if phi < 0.0 {
+        phi += TAU;
+    }
+    let y = phi * (1.0 / TAU);
+    Vec2::new(
+        x.clamp(0.0, ONE_MINUS_EPSILON),
+        y.clamp(0.0, ONE_MINUS_EPSILON),
+    )
+}
+
+/// Maps a point of the unit square to its unit direction.
+///
+/// ```
+/// use sdguide::sphere::square_to_direction;
+/// use glam::Vec2;
+/// // s.x = 1 is the north pole (+z), whatever s.y is.
+/// assert!((square_to_direction(Vec2::new(1.0, 0.3)).z - 1.0).abs() < 1e-6);
+/// ```
+#[inline]
+pub fn square_to_direction(s: Vec2) -> Vec3 {
+    let cos_theta = (2.0 * s.x - 1.0).clamp(-1.0, 1.0);
+    let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+    let (sin_phi, cos_phi) = (TAU * s.y).sin_cos();
+    Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poles_and_seam_map_inside_the_square() {
+        for d in [
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            Vec3::new(1.0, -1e-9, 0.0).normalize(),
+            Vec3::new(1.0, 1e-9, 0.0).normalize(),
+            Vec3::new(-1.0, -0.0, 0.0),
+            Vec3::new(-1.0, 0.0, 0.0),
+        ] {
+            let s = direction_to_square(d);
+            assert!(
+                (0.0..1.0).contains(&s.x) && (0.0..1.0).contains(&s.y),
+                "{d} -> {s}"
+            );
+        }
+    }
+
+    #[test]
+    fn round_trip_over_a_grid() {
+        let n = 64;
+        for i in 0..n {
+            for j in 0..n {
+                let s = Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
+                let back = direction_to_square(square_to_direction(s));
+                assert!((back - s).abs().max_element() < 1e-5, "{s} -> {back}");
+            }
+        }
+    }
+
+    #[test]
+    fn equal_area_bands() {
+        // A band of the square of width w in s.x covers a fraction w of the sphere's area:
+        // the z-extent of a band is 2w, and Archimedes' hat-box theorem gives area 2π·2w = 4π·w.
+        let lo = square_to_direction(Vec2::new(0.25, 0.0)).z;
+        let hi = square_to_direction(Vec2::new(0.5, 0.0)).z;
+        assert!(((hi - lo) * 2.0 * PI - 0.25 * SPHERE_AREA).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,92 @@
+//! What a field reports about itself: size, depth, samples taken and samples turned away.
+
+use crate::RejectReason;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Counts of rejected samples, one per [`RejectReason`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rejections {
+    /// [`RejectReason::NonFinitePosition`].
+    pub non_finite_position: u64,
+    /// [`RejectReason::OutOfBounds`].
+    pub out_of_bounds: u64,
+    /// [`RejectReason::BadDirection`].
+    pub bad_direction: u64,
+    /// [`RejectReason::BadValue`].
+    pub bad_value: u64,
+    /// [`RejectReason::BadPdf`].
+    pub bad_pdf: u64,
+}
+
+impl Rejections {
+    /// All rejections together.
+    pub fn total(&self) -> u64 {
+        self.non_finite_position
+            + self.out_of_bounds
+            + self.bad_direction
+            + self.bad_value
+            + self.bad_pdf
+    }
+}
+
+/// A snapshot of a field's shape and bookkeeping, from [`GuidingField::stats`](crate::GuidingField::stats).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FieldStats {
+    /// Completed iterations (calls to `refine`).
+    pub iteration: u32,
+    /// Nodes of the spatial tree.
+    pub spatial_nodes: u64,
+    /// Leaves of the spatial tree (each owns one directional tree).
+    pub spatial_leaves: u64,
+    /// Depth of the deepest spatial leaf (the root is 0).
+    pub spatial_depth: u32,
+    /// Interior nodes over all sampling quadtrees.
+    pub directional_nodes: u64,
+    /// Leaves over all sampling quadtrees.
+    pub directional_leaves: u64,
+    /// Depth of the deepest sampling quadtree leaf (the root's children are 1).
+    pub directional_depth: u32,
+    /// Samples recorded in the current iteration.
+    pub samples_recorded: u64,
+    /// Samples recorded over the field's life, the current iteration included.
+    pub samples_recorded_total: u64,
+    /// Samples rejected over the field's life, by reason.
+    pub rejected: Rejections,
+    /// Spatial splits refused by `max_spatial_nodes` or `max_memory_bytes`, over the field's life.
+    pub spatial_splits_refused: u64,
+    /// Directional splits refused by `max_directional_nodes`, over the field's life.
+    pub directional_splits_refused: u64,
+    /// Heap bytes held by the trees.
+    pub bytes: u64,
+}
+
+/// Lock-free rejection counters (bad input is rare, so they are not contended).
+#[derive(Debug, Default)]
+pub(crate) struct RejectCounters([AtomicU64; 5]);
+
+impl RejectCounters {
+    #[cold]
+    pub(crate) fn count(&self, reason: RejectReason) {
+        self.0[reason as usize].fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn get(&self) -> Rejections {
+        let c = |r: RejectReason| self.0[r as usize].load(Ordering::Relaxed);
+        Rejections {
+            non_finite_position: c(RejectReason::NonFinitePosition),
+            out_of_bounds: c(RejectReason::OutOfBounds),
+            bad_direction: c(RejectReason::BadDirection),
+            bad_value: c(RejectReason::BadValue),
+            bad_pdf: c(RejectReason::BadPdf),
+        }
+    }
+}
+
+impl Clone for RejectCounters {
+    fn clone(&self) -> Self {
+        Self(std::array::from_fn(|i| {
+            AtomicU64::new(self.0[i].load(Ordering::Relaxed))
+        }))
+    }
+}
