@@ -43,6 +43,7 @@
 //! - `quadtree`: the double-buffered directional quadtree (sample, pdf, record, refine).
 //! - `spatial`: the binary tree over the scene's bounding cube.
 //! - `field`: [`GuidingField`], which ties them together.
+//! - [`synthetic`]: analytic light fields and a training workload for tests and benchmarks.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
 
@@ -59,6 +60,7 @@ mod sample;
 mod spatial;
 pub mod sphere;
 mod stats;
+pub mod synthetic;
 
 pub use bounds::Aabb;
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
