@@ -8,7 +8,7 @@
 use crate::moments::weights;
 use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
 use crate::spatial::SpatialTree;
-use crate::sphere::{INV_SPHERE_AREA, direction_to_square, square_to_direction};
+use crate::sphere::{INV_SPHERE_AREA, direction_to_square, normalize, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
     Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason, Sample,
@@ -286,8 +286,9 @@ impl DirectionalDistribution<'_> {
         (direction, pdf * INV_SPHERE_AREA)
     }
 
-    /// The solid-angle density of drawing `direction` (normalized here; a zero or non-finite
-    /// direction has density 0).
+    /// The solid-angle density of drawing `direction` (normalized here, see
+    /// [`sphere::normalize`](crate::sphere::normalize); a zero or non-finite direction has
+    /// density 0).
     #[inline]
     pub fn pdf(&self, direction: Vec3) -> f32 {
         match square_of(direction) {
@@ -306,6 +307,5 @@ impl DirectionalDistribution<'_> {
 /// direction. `sample` and `pdf` both go through here, so they agree to the bit.
 #[inline]
 fn square_of(direction: Vec3) -> Option<Vec2> {
-    let len2 = direction.length_squared();
-    (len2 > 0.0 && len2.is_finite()).then(|| direction_to_square(direction / len2.sqrt()))
+    normalize(direction).map(direction_to_square)
 }

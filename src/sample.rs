@@ -51,11 +51,7 @@ impl Sample {
         if !(self.pdf > 0.0 && self.pdf.is_finite()) {
             return Err(RejectReason::BadPdf);
         }
-        let len2 = self.direction.length_squared();
-        if !(len2 > 0.0 && len2.is_finite()) {
-            return Err(RejectReason::BadDirection);
-        }
-        Ok(self.direction / len2.sqrt())
+        crate::sphere::normalize(self.direction).ok_or(RejectReason::BadDirection)
     }
 }
 

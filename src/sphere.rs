@@ -26,6 +26,37 @@ pub const INV_SPHERE_AREA: f32 = 1.0 / SPHERE_AREA;
 /// the square always falls in exactly one cell.
 pub(crate) const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
+/// The unit vector along `d`, or `None` if `d` is zero or not finite.
+///
+/// Directions whose squared length overflows or underflows `f32` are rescaled first, so every
+/// finite non-zero vector has a direction.
+///
+/// ```
+/// use sdguide::sphere::normalize;
+/// use glam::Vec3;
+/// assert_eq!(normalize(Vec3::new(0.0, 3.0, 4.0)), Some(Vec3::new(0.0, 0.6, 0.8)));
+/// assert_eq!(normalize(Vec3::splat(f32::MAX)), Some(Vec3::splat(1.0 / 3f32.sqrt())));
+/// assert_eq!(normalize(Vec3::ZERO), None);
+/// ```
+#[inline]
+pub fn normalize(d: Vec3) -> Option<Vec3> {
+    let len2 = d.length_squared();
+    if len2 > f32::MIN_POSITIVE && len2.is_finite() {
+        return Some(d / len2.sqrt());
+    }
+    normalize_rescaled(d)
+}
+
+#[cold]
+fn normalize_rescaled(d: Vec3) -> Option<Vec3> {
+    let scale = d.abs().max_element();
+    if !(d.is_finite() && scale > 0.0) {
+        return None;
+    }
+    let d = d / scale;
+    Some(d / d.length())
+}
+
 /// Maps a unit direction to its point on the unit square.
 ///
 /// The direction must be normalized; the result lies in `[0, 1)²` (clamped against rounding).

@@ -15,7 +15,10 @@ fn pdf_integrates_to_one_for_both_rules() {
     for rule in [LeafRule::L1, LeafRule::L2] {
         let field = trained(rule, DEPTH, 4, 100_000);
         let stats = field.stats();
-        assert!(stats.spatial_leaves > 1 && stats.directional_depth > 3, "{stats:?}");
+        assert!(
+            stats.spatial_leaves > 1 && stats.directional_depth > 3,
+            "{stats:?}"
+        );
         assert!(stats.directional_depth <= DEPTH);
         for cell in field.cells() {
             let dist = cell.distribution();
@@ -101,7 +104,10 @@ fn learned_estimator_is_unbiased_and_beats_uniform() {
                 e.standard_error
             );
             let uniform = estimate(&light, x, 400_000, &mut rng, |u| {
-                (sdguide::sphere::square_to_direction(u), sdguide::sphere::INV_SPHERE_AREA)
+                (
+                    sdguide::sphere::square_to_direction(u),
+                    sdguide::sphere::INV_SPHERE_AREA,
+                )
             });
             assert!(
                 e.relative_variance < 0.5 * uniform.relative_variance,

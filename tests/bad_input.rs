@@ -1,0 +1,246 @@
+//! Bad input is rejected and counted, never a panic, never a NaN in the field.
+
+mod common;
+
+use common::cell_integrals;
+use glam::{Vec2, Vec3};
+use sdguide::synthetic::{LightField, Workload};
+use sdguide::{Aabb, GuidingConfig, GuidingField, Rejections, Sample};
+
+const NAN: f32 = f32::NAN;
+const INF: f32 = f32::INFINITY;
+
+fn field() -> GuidingField {
+    GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default()).unwrap()
+}
+
+#[test]
+fn every_bad_sample_is_rejected_and_counted_by_reason() {
+    let mut field = field();
+    let p = Vec3::splat(0.5);
+    let bad = [
+        // (sample, which counter)
+        (
+            Sample::new(Vec3::new(NAN, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
+            "position",
+        ),
+        (
+            Sample::new(Vec3::new(0.5, INF, 0.5), Vec3::Z, 1.0, 1.0),
+            "position",
+        ),
+        (
+            Sample::new(Vec3::new(0.5, 0.5, 1.5), Vec3::Z, 1.0, 1.0),
+            "bounds",
+        ),
+        (
+            Sample::new(Vec3::new(-0.01, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
+            "bounds",
+        ),
+        (Sample::new(p, Vec3::ZERO, 1.0, 1.0), "direction"),
+        (
+            Sample::new(p, Vec3::new(NAN, 0.0, 1.0), 1.0, 1.0),
+            "direction",
+        ),
+        (
+            Sample::new(p, Vec3::new(INF, 0.0, 1.0), 1.0, 1.0),
+            "direction",
+        ),
+        (Sample::new(p, Vec3::Z, NAN, 1.0), "value"),
+        (Sample::new(p, Vec3::Z, INF, 1.0), "value"),
+        (Sample::new(p, Vec3::Z, -1.0, 1.0), "value"),
+        (Sample::new(p, Vec3::Z, 1.0, 0.0), "pdf"),
+        (Sample::new(p, Vec3::Z, 1.0, -0.0), "pdf"),
+        (Sample::new(p, Vec3::Z, 1.0, -2.0), "pdf"),
+        (Sample::new(p, Vec3::Z, 1.0, NAN), "pdf"),
+        (Sample::new(p, Vec3::Z, 1.0, INF), "pdf"),
+    ];
+    let mut expected = Rejections::default();
+    for (s, reason) in bad {
+        field.record(&s);
+        match reason {
+            "position" => expected.non_finite_position += 1,
+            "bounds" => expected.out_of_bounds += 1,
+            "direction" => expected.bad_direction += 1,
+            "value" => expected.bad_value += 1,
+            _ => expected.bad_pdf += 1,
+        }
+    }
+    // Extreme but valid samples are accepted: a subnormal pdf, a huge value, a point just
+    // outside the bounds (within the tolerance), an unnormalized direction.
+    let good = [
+        Sample::new(p, Vec3::Z, f32::MAX, f32::from_bits(1)),
+        Sample::new(p, Vec3::Z, 0.0, 1.0),
+        Sample::new(Vec3::new(1.0005, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
+        Sample::new(p, Vec3::new(0.0, 3.0, 4.0), 1.0, 1.0),
+        Sample::new(p, Vec3::splat(f32::MAX), 1.0, 1.0),
+        Sample::new(p, Vec3::new(0.0, 1e-30, -1e-30), 1.0, 1.0),
+    ];
+    field.record_all(&good);
+    let stats = field.stats();
+    assert_eq!(stats.rejected, expected);
+    assert_eq!(stats.samples_recorded, good.len() as u64);
+    field.refine();
+    // The field stays a valid distribution: finite, positive, integrating to 1.
+    let dist = field.distribution(p);
+    for (_, m) in dist.leaves() {
+        assert!(m.is_finite() && m > 0.0);
+    }
+    let integral: f64 = cell_integrals(&dist, 8).iter().sum();
+    assert!((integral - 1.0).abs() < 1e-5, "{integral}");
+}
+
+#[test]
+fn queries_with_bad_arguments_stay_valid() {
+    let mut field = field();
+    Workload {
+        light: LightField::standard(),
+        seed: 1,
+    }
+    .train(&mut field, 2, 20_000);
+    for x in [
+        Vec3::splat(NAN),
+        Vec3::new(INF, -INF, 0.5),
+        Vec3::splat(-100.0),
+        Vec3::splat(1e30),
+    ] {
+        let dist = field.distribution(x);
+        for u in [
+            Vec2::splat(NAN),
+            Vec2::new(-1.0, 2.0),
+            Vec2::ONE,
+            Vec2::new(INF, -INF),
+        ] {
+            let (d, pdf) = dist.sample(u);
+            assert!(d.is_finite() && (d.length() - 1.0).abs() < 1e-5);
+            assert!(pdf > 0.0 && pdf.is_finite());
+            assert_eq!(pdf, dist.pdf(d));
+        }
+        for d in [Vec3::ZERO, Vec3::splat(NAN), Vec3::new(INF, 0.0, 0.0)] {
+            assert_eq!(dist.pdf(d), 0.0);
+        }
+    }
+}
+
+#[test]
+fn absurd_configs_and_bounds_are_typed_errors() {
+    let ok = GuidingConfig::default();
+    let cases: [(GuidingConfig, &str); 11] = [
+        (
+            GuidingConfig {
+                spatial_threshold: NAN,
+                ..ok.clone()
+            },
+            "spatial_threshold",
+        ),
+        (
+            GuidingConfig {
+                spatial_threshold: 0.5,
+                ..ok.clone()
+            },
+            "spatial_threshold",
+        ),
+        (
+            GuidingConfig {
+                subdivision_threshold: 0.0,
+                ..ok.clone()
+            },
+            "subdivision_threshold",
+        ),
+        (
+            GuidingConfig {
+                subdivision_threshold: NAN,
+                ..ok.clone()
+            },
+            "subdivision_threshold",
+        ),
+        (
+            GuidingConfig {
+                max_directional_depth: 0,
+                ..ok.clone()
+            },
+            "max_directional_depth",
+        ),
+        (
+            GuidingConfig {
+                max_directional_depth: 21,
+                ..ok.clone()
+            },
+            "max_directional_depth",
+        ),
+        (
+            GuidingConfig {
+                uniform_fraction: 0.0,
+                ..ok.clone()
+            },
+            "uniform_fraction",
+        ),
+        (
+            GuidingConfig {
+                uniform_fraction: 1.5,
+                ..ok.clone()
+            },
+            "uniform_fraction",
+        ),
+        (
+            GuidingConfig {
+                max_directional_nodes: 0,
+                ..ok.clone()
+            },
+            "max_directional_nodes",
+        ),
+        (
+            GuidingConfig {
+                max_spatial_nodes: 0,
+                ..ok.clone()
+            },
+            "max_spatial_nodes",
+        ),
+        (
+            GuidingConfig {
+                max_memory_bytes: 10,
+                ..ok.clone()
+            },
+            "max_memory_bytes",
+        ),
+    ];
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    for (config, field) in cases {
+        let err = GuidingField::new(bounds, config).unwrap_err();
+        assert_eq!(err.field, field);
+        assert!(err.to_string().contains(field));
+    }
+    for bad in [
+        Aabb::new(Vec3::ONE, Vec3::ZERO),
+        Aabb::new(Vec3::ZERO, Vec3::ZERO),
+        Aabb::new(Vec3::ZERO, Vec3::new(1.0, NAN, 1.0)),
+        Aabb::new(Vec3::splat(-INF), Vec3::ONE),
+    ] {
+        assert_eq!(
+            GuidingField::new(bad, ok.clone()).unwrap_err().field,
+            "bounds"
+        );
+    }
+    // A flat box (a single wall) is fine: the field covers its bounding cube.
+    assert!(GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0)), ok).is_ok());
+}
+
+#[test]
+fn config_round_trips_through_serde_and_fills_missing_fields() {
+    let config = GuidingConfig {
+        rule: sdguide::LeafRule::L1,
+        spatial_threshold: 4000.0,
+        ..GuidingConfig::default()
+    };
+    let json = serde_json::to_string(&config).unwrap();
+    assert_eq!(
+        serde_json::from_str::<GuidingConfig>(&json).unwrap(),
+        config
+    );
+    let partial: GuidingConfig = serde_json::from_str(r#"{"rule":"L1"}"#).unwrap();
+    assert_eq!(partial.rule, sdguide::LeafRule::L1);
+    assert_eq!(
+        partial.spatial_threshold,
+        GuidingConfig::default().spatial_threshold
+    );
+    assert!(serde_json::from_str::<GuidingConfig>(r#"{"rho":0.5}"#).is_err());
+}

@@ -1,0 +1,73 @@
+//! Recording from many threads loses nothing: per-leaf moments equal a serial recording's.
+
+use sdguide::synthetic::{LightField, Rng, Workload};
+use sdguide::{GuidingConfig, GuidingField, Moments, Sample};
+
+/// A field with a non-trivial topology (several spatial leaves, deep quadtrees).
+fn pretrained(workload: &Workload) -> GuidingField {
+    let mut field =
+        GuidingField::new(sdguide::synthetic::room_bounds(), GuidingConfig::default()).unwrap();
+    workload.train(&mut field, 3, 100_000);
+    field
+}
+
+fn moments(field: &GuidingField) -> Vec<Moments> {
+    field
+        .cells()
+        .flat_map(|c| c.recorded().into_iter().map(|(_, m)| m))
+        .collect()
+}
+
+#[test]
+fn concurrent_recording_equals_serial_recording() {
+    let workload = Workload {
+        light: LightField::standard(),
+        seed: 99,
+    };
+    let base = pretrained(&workload);
+    let per_thread = 1_000_000usize;
+    for threads in [2usize, 4, 8] {
+        let batches: Vec<Vec<Sample>> = (0..threads)
+            .map(|t| {
+                let mut rng = Rng::new(1000 + t as u64);
+                (0..per_thread)
+                    .map(|_| workload.draw(&base, &mut rng))
+                    .collect()
+            })
+            .collect();
+        let serial = base.clone();
+        for b in &batches {
+            serial.record_all(b);
+        }
+        let concurrent = base.clone();
+        std::thread::scope(|s| {
+            for b in &batches {
+                let field = &concurrent;
+                s.spawn(move || field.record_all(b));
+            }
+        });
+        let (a, b) = (moments(&serial), moments(&concurrent));
+        assert_eq!(a.len(), b.len());
+        assert!(
+            a.len() > 100,
+            "the topology should be non-trivial: {} leaves",
+            a.len()
+        );
+        let total: u64 = b.iter().map(|m| m.count).sum();
+        assert_eq!(total, (threads * per_thread) as u64, "{threads} threads");
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(x.count, y.count, "{threads} threads");
+            // Summed in any order, n positive f64 terms err by at most (n−1)·2⁻⁵³ of their sum, so
+            // two orders differ by at most n·2⁻⁵² = n·ε of it.
+            let tol = x.count as f64 * f64::EPSILON;
+            assert!(
+                (x.sum - y.sum).abs() <= tol * x.sum,
+                "{threads} threads: {x:?} vs {y:?}"
+            );
+            assert!(
+                (x.sum_sq - y.sum_sq).abs() <= tol * x.sum_sq,
+                "{threads} threads: {x:?} vs {y:?}"
+            );
+        }
+    }
+}

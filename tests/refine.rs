@@ -1,0 +1,246 @@
+//! Leaf masses follow the closed form, and refinement splits, prunes and respects its caps.
+
+use glam::{Vec2, Vec3};
+use sdguide::sphere::{INV_SPHERE_AREA, square_to_direction};
+use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Sample};
+
+fn unit_box() -> Aabb {
+    Aabb::new(Vec3::ZERO, Vec3::ONE)
+}
+
+/// The centre of quadrant `q` (`q = ix + 2·iy`) of the square, as a direction.
+fn quadrant_direction(q: usize) -> Vec3 {
+    square_to_direction(Vec2::new(
+        0.25 + 0.5 * (q & 1) as f32,
+        0.25 + 0.5 * (q >> 1) as f32,
+    ))
+}
+
+/// Records (quadrant, value, pdf) samples at the centre of the unit box.
+fn record(field: &GuidingField, samples: &[(usize, f32, f32)]) {
+    for &(q, v, p) in samples {
+        field.record(&Sample::new(Vec3::splat(0.5), quadrant_direction(q), v, p));
+    }
+}
+
+/// The hand-built case: one spatial leaf, the initial four quadrants, known moments.
+///   q0: two samples v = 1, p = 1      → S1 = 2,   S2 = 2
+///   q1: one sample  v = 2, p = 0.5    → S1 = 4,   S2 = 8
+///   q2: one sample  v = 3, p = 2      → S1 = 1.5, S2 = 4.5
+///   q3: one sample  v = 0             → S1 = 0,   S2 = 0
+const HAND_BUILT: [(usize, f32, f32); 5] = [
+    (0, 1.0, 1.0),
+    (0, 1.0, 1.0),
+    (1, 2.0, 0.5),
+    (2, 3.0, 2.0),
+    (3, 0.0, 1.0),
+];
+
+#[test]
+fn leaf_masses_follow_the_closed_form() {
+    let s1 = [2.0f64, 4.0, 1.5, 0.0];
+    let s2 = [2.0f64, 8.0, 4.5, 0.0];
+    for rule in [LeafRule::L1, LeafRule::L2] {
+        let config = GuidingConfig {
+            rule,
+            spatial_threshold: 1e9,
+            ..GuidingConfig::default()
+        };
+        let eps = f64::from(config.uniform_fraction);
+        let mut field = GuidingField::new(unit_box(), config).unwrap();
+        record(&field, &HAND_BUILT);
+        field.refine();
+        let raw: Vec<f64> = match rule {
+            LeafRule::L1 => s1.to_vec(),
+            LeafRule::L2 => s2.iter().map(|s| (0.25 * s).sqrt()).collect(),
+        };
+        let total: f64 = raw.iter().sum();
+        let dist = field.distribution(Vec3::splat(0.5));
+        let leaves = dist.leaves();
+        assert_eq!(leaves.len(), 4);
+        for (cell, p) in leaves {
+            let q = usize::from(cell.origin.x > 0.0) | usize::from(cell.origin.y > 0.0) << 1;
+            let expected = (1.0 - eps) * raw[q] / total + eps * 0.25;
+            assert!(
+                (f64::from(p) - expected).abs() < 1e-6,
+                "{rule:?} q{q}: {p} vs {expected}"
+            );
+            // pdf inside the cell is its mass over its solid angle (π for a quarter sphere).
+            let pdf = dist.pdf(quadrant_direction(q));
+            assert!((f64::from(pdf) - expected / std::f64::consts::PI).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn one_refine_splits_several_levels_and_leaves_dark_cells_whole() {
+    let config = GuidingConfig {
+        spatial_threshold: 1e9,
+        ..GuidingConfig::default()
+    };
+    let rho = f64::from(config.subdivision_threshold);
+    let mut field = GuidingField::new(unit_box(), config).unwrap();
+    record(&field, &HAND_BUILT);
+    field.refine();
+    // L2 shares of the four quadrants; a cell of share s splits while s/4^k > ρ.
+    let raw = [2.0f64, 8.0, 4.5, 0.0].map(|s: f64| (0.25 * s).sqrt());
+    let total: f64 = raw.iter().sum();
+    let cell = field.cells().next().unwrap();
+    for (leaf, _) in cell.recorded() {
+        let q = usize::from(leaf.origin.x >= 0.5) | usize::from(leaf.origin.y >= 0.5) << 1;
+        let mut depth = 1;
+        let mut share = raw[q] / total;
+        while share > rho {
+            share /= 4.0;
+            depth += 1;
+        }
+        assert_eq!(leaf.depth, depth, "quadrant {q}");
+    }
+}
+
+/// A field at one point that has learned light from the +z pole over `iterations` iterations.
+fn trained_on_pole(config: GuidingConfig, iterations: u32) -> GuidingField {
+    let mut field = GuidingField::new(unit_box(), config).unwrap();
+    for _ in 0..iterations {
+        record_pole(&field, 200);
+        field.refine();
+    }
+    field
+}
+
+/// Uniformly spread samples on a `n × n` grid with light only within ~8° of +z.
+fn record_pole(field: &GuidingField, n: usize) {
+    for i in 0..n * n {
+        let s = Vec2::new(
+            ((i % n) as f32 + 0.5) / n as f32,
+            ((i / n) as f32 + 0.5) / n as f32,
+        );
+        let d = square_to_direction(s);
+        let v = if d.z > 0.99 { 100.0 } else { 0.0 };
+        field.record(&Sample::new(Vec3::splat(0.5), d, v, INV_SPHERE_AREA));
+    }
+}
+
+#[test]
+fn refinement_prunes_when_the_light_goes_away() {
+    let config = GuidingConfig {
+        spatial_threshold: 1e9,
+        ..GuidingConfig::default()
+    };
+    let mut field = trained_on_pole(config, 3);
+    let before = field.stats();
+    assert!(before.directional_depth >= 5, "{before:?}");
+    // Now the light is uniform: one iteration of flat values collapses the tree.
+    for i in 0..40_000 {
+        let s = Vec2::new((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
+        field.record(&Sample::new(
+            Vec3::splat(0.5),
+            square_to_direction(s),
+            1.0,
+            INV_SPHERE_AREA,
+        ));
+    }
+    field.refine();
+    // Flat light over the pole-refined partition: every leaf's share is its area, so only cells
+    // larger than ρ = 0.01 stay split (4^-3 > 0.01 > 4^-4): leaves at depth 4 at the most.
+    let cell = field.cells().next().unwrap();
+    let max_depth = cell.recorded().iter().map(|(c, _)| c.depth).max().unwrap();
+    assert!(max_depth <= 4, "depth {max_depth}");
+    // A refine with no samples keeps the learned distribution as it was.
+    let leaves_before = cell.distribution().leaves();
+    field.refine();
+    assert_eq!(
+        field.cells().next().unwrap().distribution().leaves(),
+        leaves_before
+    );
+}
+
+#[test]
+fn directional_node_cap_is_respected_and_reported() {
+    let config = GuidingConfig {
+        spatial_threshold: 1e9,
+        max_directional_nodes: 5,
+        ..GuidingConfig::default()
+    };
+    let field = trained_on_pole(config, 3);
+    let stats = field.stats();
+    assert!(stats.directional_nodes <= 5, "{stats:?}");
+    assert!(stats.directional_splits_refused > 0);
+    for cell in field.cells() {
+        assert!(cell.recorded().len() <= 1 + 3 * 5);
+    }
+}
+
+#[test]
+fn spatial_split_follows_the_sample_count_rule() {
+    // 1000 samples at c = 100 in iteration 0 (threshold c·sqrt(2^0) = 100): counts halve at
+    // each split, 1000 → 500 → 250 → 125 → 62.5, so four levels: 16 leaves of depth 4.
+    let config = GuidingConfig {
+        spatial_threshold: 100.0,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(unit_box(), config).unwrap();
+    for i in 0..1000 {
+        let p = Vec3::new(i as f32 / 1000.0, 0.5, 0.5);
+        field.record(&Sample::new(p, Vec3::Z, 1.0, 1.0));
+    }
+    field.refine();
+    let stats = field.stats();
+    assert_eq!(
+        (stats.spatial_leaves, stats.spatial_depth),
+        (16, 4),
+        "{stats:?}"
+    );
+    // In iteration 1 the threshold is 100·sqrt(2): 141 samples in one leaf do not split it.
+    let before = stats.spatial_leaves;
+    for _ in 0..141 {
+        field.record(&Sample::new(Vec3::splat(0.01), Vec3::Z, 1.0, 1.0));
+    }
+    field.refine();
+    assert_eq!(field.stats().spatial_leaves, before);
+    // In iteration 2 the threshold is 100·2 = 200: 201 samples split the leaf.
+    for _ in 0..201 {
+        field.record(&Sample::new(Vec3::splat(0.01), Vec3::Z, 1.0, 1.0));
+    }
+    field.refine();
+    assert_eq!(field.stats().spatial_leaves, before + 1);
+    // Children start from the parent's distribution: every leaf answers the same pdf at +z.
+    let pdfs: Vec<f32> = field
+        .cells()
+        .map(|c| c.distribution().pdf(Vec3::Z))
+        .collect();
+    assert!(pdfs.iter().all(|&p| p > 0.0 && p.is_finite()));
+}
+
+#[test]
+fn spatial_caps_stop_splitting_and_say_so() {
+    for config in [
+        GuidingConfig {
+            spatial_threshold: 1.0,
+            max_spatial_nodes: 7,
+            ..GuidingConfig::default()
+        },
+        GuidingConfig {
+            spatial_threshold: 1.0,
+            max_memory_bytes: 64 * 1024,
+            ..GuidingConfig::default()
+        },
+    ] {
+        let budget = config.max_memory_bytes;
+        let nodes = config.max_spatial_nodes;
+        let mut field = GuidingField::new(unit_box(), config).unwrap();
+        for i in 0..100_000 {
+            let p = Vec3::new(
+                (i % 47) as f32 / 47.0,
+                (i % 31) as f32 / 31.0,
+                (i % 13) as f32 / 13.0,
+            );
+            field.record(&Sample::new(p, Vec3::Z, 1.0, 1.0));
+        }
+        field.refine();
+        let stats = field.stats();
+        assert!(stats.spatial_splits_refused > 0, "{stats:?}");
+        assert!(stats.spatial_nodes <= u64::from(nodes));
+        assert!(stats.bytes <= budget, "{stats:?}");
+    }
+}
