@@ -1,0 +1,161 @@
+//! Criterion benchmarks of the three hot operations on the standard workload.
+//!
+//! The workload (see `sdguide::synthetic`): the unit room, points on three walls and a sphere,
+//! light from two vMF lobes (κ = 800 and κ = 60) plus a small ambient term; trained 6 iterations
+//! with doubling budgets from 1M samples, directions drawn ½ uniform, ½ from the learned
+//! distribution. Set `SDGUIDE_BENCH_BUDGET` to train on a smaller first budget.
+//!
+//! Single-thread figures run inside a one-thread rayon pool; `record/2-threads` records the same
+//! batch split over two OS threads.
+
+use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
+use glam::{Vec2, Vec3};
+use sdguide::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
+use sdguide::{GuidingConfig, GuidingField, LeafRule, Sample};
+use std::hint::black_box;
+use std::sync::OnceLock;
+
+const BATCH: usize = 1 << 16;
+
+fn workload() -> Workload {
+    Workload {
+        light: LightField::standard(),
+        seed: 2024,
+    }
+}
+
+/// The field trained on the standard workload, shared by all benchmarks (trained once).
+fn trained() -> &'static GuidingField {
+    static FIELD: OnceLock<GuidingField> = OnceLock::new();
+    FIELD.get_or_init(|| {
+        let first = std::env::var("SDGUIDE_BENCH_BUDGET")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1_000_000);
+        let mut field = GuidingField::new(
+            room_bounds(),
+            GuidingConfig {
+                rule: LeafRule::L2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        workload().train(&mut field, 6, first);
+        eprintln!("trained field: {:?}", field.stats());
+        field
+    })
+}
+
+/// A batch of samples as the workload's renderer would record them.
+fn samples(field: &GuidingField) -> Vec<Sample> {
+    let w = workload();
+    let mut rng = Rng::new(7);
+    (0..BATCH).map(|_| w.draw(field, &mut rng)).collect()
+}
+
+fn one_thread<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
+fn bench_record(c: &mut Criterion) {
+    let field = trained().clone();
+    let batch = samples(&field);
+    let mut g = c.benchmark_group("record");
+    g.throughput(Throughput::Elements(BATCH as u64));
+    g.bench_function("1-thread", |b| {
+        b.iter(|| field.record_all(black_box(&batch)))
+    });
+    g.bench_function("2-threads", |b| {
+        b.iter(|| {
+            std::thread::scope(|s| {
+                for half in batch.chunks(BATCH / 2) {
+                    let field = &field;
+                    s.spawn(move || field.record_all(black_box(half)));
+                }
+            })
+        })
+    });
+    g.finish();
+}
+
+fn bench_query(c: &mut Criterion) {
+    let field = trained();
+    let mut rng = Rng::new(11);
+    let queries: Vec<(Vec3, Vec2, Vec3)> = (0..BATCH)
+        .map(|_| {
+            let x = room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+            let other = sdguide::sphere::square_to_direction(rng.next_vec2());
+            (x, rng.next_vec2(), other)
+        })
+        .collect();
+    let mut g = c.benchmark_group("query");
+    g.throughput(Throughput::Elements(BATCH as u64));
+    // What a renderer does at a vertex: find the distribution, sample it, and evaluate the pdf
+    // of another direction (the BSDF's, for MIS).
+    g.bench_function("distribution+sample+pdf", |b| {
+        b.iter(|| {
+            let mut acc = 0.0f32;
+            for &(x, u, other) in &queries {
+                let dist = field.distribution(black_box(x));
+                let (d, p) = dist.sample(black_box(u));
+                acc += p + d.x + dist.pdf(black_box(other));
+            }
+            acc
+        })
+    });
+    g.bench_function("distribution", |b| {
+        b.iter(|| {
+            queries
+                .iter()
+                .map(|&(x, _, _)| field.distribution(black_box(x)).pdf(Vec3::Z))
+                .sum::<f32>()
+        })
+    });
+    let dist = field.distribution(Vec3::new(0.5, 0.0, 0.5));
+    g.bench_function("sample", |b| {
+        b.iter(|| {
+            queries
+                .iter()
+                .map(|&(_, u, _)| dist.sample(black_box(u)).1)
+                .sum::<f32>()
+        })
+    });
+    g.bench_function("pdf", |b| {
+        b.iter(|| {
+            queries
+                .iter()
+                .map(|&(_, _, d)| dist.pdf(black_box(d)))
+                .sum::<f32>()
+        })
+    });
+    g.finish();
+}
+
+fn bench_refine(c: &mut Criterion) {
+    let field = trained().clone();
+    // One iteration's worth of samples at the trained state, then refine a fresh copy each time.
+    let w = workload();
+    let k = field.iteration();
+    w.record_iteration(&field, k, 1_000_000);
+    let leaves = field.stats().spatial_leaves;
+    let mut g = c.benchmark_group("refine");
+    g.sample_size(20);
+    g.bench_function(format!("{leaves}-leaves/1-thread"), |b| {
+        b.iter_batched(
+            || field.clone(),
+            |mut f| one_thread(move || f.refine()),
+            BatchSize::LargeInput,
+        )
+    });
+    g.bench_function(format!("{leaves}-leaves/2-threads"), |b| {
+        b.iter_batched(|| field.clone(), |mut f| f.refine(), BatchSize::LargeInput)
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_record, bench_query, bench_refine);
+criterion_main!(benches);
