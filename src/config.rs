@@ -38,7 +38,7 @@ pub struct GuidingConfig {
     /// and a zero pdf there would bias the estimator. Must be in `(0, 1]`; 1 is uniform sampling.
     pub uniform_fraction: f32,
     /// Cap on interior nodes per directional quadtree (default 8192). Refinement splits the
-    /// cells with the largest share first and stops at the cap. Must be ≥ 1.
+    /// cells with the largest share first and stops at the cap. Must be in `1..=65535`.
     pub max_directional_nodes: u32,
     /// Cap on spatial tree nodes (default 2²⁰). Spatial splits beyond it are refused and
     /// counted in [`FieldStats`](crate::FieldStats). Must be ≥ 1.
@@ -103,10 +103,10 @@ impl GuidingConfig {
             "a number in (0, 1]",
         )?;
         check(
-            self.max_directional_nodes >= 1,
+            (1..=crate::quadtree::MAX_NODES).contains(&self.max_directional_nodes),
             "max_directional_nodes",
             self.max_directional_nodes.to_string(),
-            "an integer >= 1",
+            "an integer in 1..=65535",
         )?;
         check(
             self.max_spatial_nodes >= 1,

@@ -275,12 +275,12 @@ impl DirectionalDistribution<'_> {
     /// [`pdf`](Self::pdf) of the returned direction exactly.
     #[inline]
     pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
-        let (s, pdf, cell) = self.tree.sample(u);
+        let (s, pdf, near_border) = self.tree.sample(u);
         let direction = square_to_direction(s);
-        // The round trip through the sphere may move a point lying within rounding distance of
-        // a cell border into the neighbour; report the density of the cell `pdf` will find.
+        // The round trip through the sphere moves a point by rounding only; a point that close
+        // to its leaf's border may come back in the neighbour, so report the density `pdf` finds.
         let pdf = match square_of(direction) {
-            Some(back) if !cell.contains(back) => self.tree.pdf(back),
+            Some(back) if near_border => self.tree.pdf(back),
             _ => pdf,
         };
         (direction, pdf * INV_SPHERE_AREA)

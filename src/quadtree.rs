@@ -17,7 +17,7 @@
 //! lets bottom-up passes run as one reverse sweep.
 
 use crate::moments::AtomicMoments;
-use crate::sphere::ONE_MINUS_EPSILON;
+use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
 use glam::Vec2;
 use std::cmp::Ordering;
@@ -27,46 +27,84 @@ use std::collections::BinaryHeap;
 const LEAF_BIT: u32 = 1 << 31;
 
 /// In a [`SamplingTree`] node, the child index of a leaf (the root is node 0, nobody's child).
-const NO_CHILD: u32 = 0;
+const NO_CHILD: u16 = 0;
+
+/// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
+pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
+
+/// Bits of the fixed-point square coordinates descents use: deeper than any tree (20 levels).
+const FIXED_BITS: u32 = 24;
 
 /// One interior node of a sampling tree: 32 bytes, two to a cache line.
+///
+/// The node stores conditional probabilities rather than masses, so neither sampling nor pdf
+/// evaluation divides: quadrant `q = ix + 2·iy` has probability `px[ix] · py[ix][iy]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
 struct SamplingNode {
-    /// Probability of each quadrant given this node (they sum to 1 up to rounding).
-    prob: [f32; 4],
+    /// Probability of the left (`ix = 0`) and right column.
+    px: [f32; 2],
+    /// Within column `ix`: probability of the lower (`iy = 0`) and upper cell.
+    py: [[f32; 2]; 2],
     /// Index of each quadrant's node, or [`NO_CHILD`] for a leaf.
-    child: [u32; 4],
+    child: [u16; 4],
 }
 
-/// The quadrant of `s ∈ [0,1)²` and `s` rescaled into that quadrant.
-#[inline]
-fn quadrant(s: Vec2) -> (usize, Vec2) {
-    let ix = s.x >= 0.5;
-    let iy = s.y >= 0.5;
-    // Doubling and subtracting 1 are exact in floating point: no drift over 20 levels.
-    let local = Vec2::new(
-        2.0 * s.x - f32::from(u8::from(ix)),
-        2.0 * s.y - f32::from(u8::from(iy)),
-    );
-    (usize::from(ix) | usize::from(iy) << 1, local)
+impl SamplingNode {
+    /// `4·P(q)`: the density factor of descending into quadrant `(ix, iy)`. Sampling and pdf
+    /// evaluation both call this, so the pdf a sample returns is bit-identical to `pdf`'s.
+    #[inline]
+    fn density_factor(&self, ix: usize, iy: usize) -> f32 {
+        4.0 * self.px[ix] * self.py[ix][iy]
+    }
+
+    /// The node for quadrant masses `m` (all positive).
+    fn from_masses(m: [f64; 4], child: [u16; 4]) -> Self {
+        let col = [m[0] + m[2], m[1] + m[3]];
+        let total = col[0] + col[1];
+        Self {
+            px: col.map(|c| (c / total) as f32),
+            py: [0, 1].map(|ix| [(m[ix] / col[ix]) as f32, (m[ix + 2] / col[ix]) as f32]),
+            child,
+        }
+    }
+
+    const UNIFORM: SamplingNode = SamplingNode {
+        px: [0.5; 2],
+        py: [[0.5; 2]; 2],
+        child: [NO_CHILD; 4],
+    };
 }
 
-/// `4·p_q / Σp`: the density factor of descending into quadrant `q` of a node. Sampling and
-/// pdf evaluation both call this, so the pdf a sample returns is bit-identical to `pdf`'s.
+/// A point of `[0,1)²` as `FIXED_BITS`-bit integers: at depth `d` (1-based) the quadrant bits
+/// are bit `FIXED_BITS − d` of each. Exact: `floor(s·2^24) >> (24 − d) = floor(s·2^d)`.
 #[inline]
-fn density_factor(prob: &[f32; 4], q: usize) -> f32 {
-    4.0 * prob[q] / ((prob[0] + prob[2]) + (prob[1] + prob[3]))
+fn fixed(s: Vec2) -> [u32; 2] {
+    let scale = (1u32 << FIXED_BITS) as f32;
+    let max = (1u32 << FIXED_BITS) - 1;
+    // `as` saturates (NaN becomes 0), and `min` keeps 1.0 itself inside.
+    [(s.x * scale) as u32, (s.y * scale) as u32].map(|v| v.min(max))
 }
 
-/// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0.
+/// The quadrant bits of a fixed-point point at depth `d`.
 #[inline]
+fn quadrant_bits(p: [u32; 2], d: u32) -> (usize, usize) {
+    let shift = FIXED_BITS - d;
+    (
+        ((p[0] >> shift) & 1) as usize,
+        ((p[1] >> shift) & 1) as usize,
+    )
+}
+
+/// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0 (which `clamp` would not do).
+#[inline]
+#[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
 fn unit(x: f32) -> f32 {
     x.max(0.0).min(ONE_MINUS_EPSILON)
 }
 
-/// A directional cell: the square `[origin, origin + size)` at `depth` (the root's children are
-/// at depth 1).
+/// A directional cell: the square `[origin, origin + size)` of the unit square at `depth` (the
+/// root's children are at depth 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DirectionalCell {
     /// The cell's corner with the smallest coordinates, on the unit square.
@@ -81,10 +119,6 @@ impl DirectionalCell {
     /// The fraction of the square (and of the sphere) the cell covers.
     pub fn area(&self) -> f64 {
         f64::from(self.size) * f64::from(self.size)
-    }
-
-    pub(crate) fn contains(&self, s: Vec2) -> bool {
-        s.cmpge(self.origin).all() && (s - self.origin).cmplt(Vec2::splat(self.size)).all()
     }
 
     fn child(&self, q: usize) -> DirectionalCell {
@@ -114,64 +148,71 @@ impl SamplingTree {
     /// The uniform density: one root with four equal leaves.
     pub(crate) fn uniform() -> Self {
         Self {
-            nodes: Box::new([SamplingNode {
-                prob: [0.25; 4],
-                child: [NO_CHILD; 4],
-            }]),
+            nodes: Box::new([SamplingNode::UNIFORM]),
         }
     }
 
-    /// Draws a point from `u ∈ [0,1)²`: returns the point, its density on the square and the
-    /// leaf it fell in. `u` is rescaled at every level, so two numbers serve the whole descent.
+    /// Draws a point from `u ∈ [0,1)²`: returns the point, its density on the square, and
+    /// whether the point may lie within rounding distance of its leaf's border.
+    ///
+    /// The descent uses the caller's two numbers throughout: at each level the interval of `u`
+    /// that leads to the current node, `[a, a + w)`, is cut by the quadrant probabilities, and
+    /// inside the leaf `(u − a)/w` places the point uniformly. (Cutting the interval instead of
+    /// rescaling `u` keeps divisions off the per-level dependency chain.)
     #[inline]
-    pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, DirectionalCell) {
-        let mut u = Vec2::new(unit(u.x), unit(u.y));
-        let mut cell = DirectionalCell::ROOT;
+    pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, bool) {
+        let u = Vec2::new(unit(u.x), unit(u.y));
+        let (mut a, mut w) = (Vec2::ZERO, Vec2::ONE);
+        let mut cell = [0u32; 2];
+        let mut depth = 0;
         let mut pdf = 1.0;
         let mut node = 0usize;
         loop {
             let n = &self.nodes[node];
-            let p = &n.prob;
-            // Choose the x half by the mass of each column, then the y half inside that column.
-            let (left, right) = (p[0] + p[2], p[1] + p[3]);
-            let tx = u.x * (left + right);
-            let ix = usize::from(tx >= left);
-            u.x = unit(if ix == 0 {
-                tx / left
-            } else {
-                (tx - left) / right
-            });
-            let (lo, hi) = (p[ix], p[ix + 2]);
-            let ty = u.y * (lo + hi);
-            let iy = usize::from(ty >= lo);
-            u.y = unit(if iy == 0 { ty / lo } else { (ty - lo) / hi });
-            let q = ix | iy << 1;
-            pdf *= density_factor(p, q);
-            cell = cell.child(q);
-            match n.child[q] {
-                NO_CHILD => return (cell.origin + u * cell.size, pdf, cell),
-                c => node = c as usize,
+            // Branch-free: with random `u` each choice is a coin flip no predictor can learn.
+            // The lower/upper choice is made for both columns at once, off the x chain.
+            let left = w.x * n.px[0];
+            let ix = usize::from(u.x >= a.x + left);
+            let lower = [w.y * n.py[0][0], w.y * n.py[1][0]];
+            let upper = [u.y >= a.y + lower[0], u.y >= a.y + lower[1]];
+            a.x += [0.0, left][ix];
+            w.x = [left, w.x * n.px[1]][ix];
+            let iy = usize::from(upper[ix]);
+            a.y += [0.0, lower[ix]][iy];
+            w.y = [lower[ix], w.y * n.py[ix][1]][iy];
+            pdf *= n.density_factor(ix, iy);
+            cell = [2 * cell[0] + ix as u32, 2 * cell[1] + iy as u32];
+            depth += 1;
+            match n.child[ix | iy << 1] {
+                NO_CHILD => break,
+                c => node = usize::from(c),
             }
         }
+        // 2^-depth from its exponent bits (depth ≤ 20, so the result is a normal f32).
+        let size = f32::from_bits((127 - depth) << 23);
+        let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
+        let origin = Vec2::new(cell[0] as f32, cell[1] as f32) * size;
+        let margin = ROUND_TRIP_BOUND / size;
+        let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
+        (origin + local * size, pdf, near_border)
     }
 
-    /// The density on the square at `s ∈ [0,1)²`, and the leaf that holds `s`.
+    /// The density on the square at `s ∈ [0,1)²`.
     #[inline]
     pub(crate) fn pdf(&self, s: Vec2) -> f32 {
-        let mut s = s;
+        let p = fixed(s);
         let mut pdf = 1.0;
         let mut node = 0usize;
+        let mut depth = 1;
         loop {
             let n = &self.nodes[node];
-            let (q, local) = quadrant(s);
-            pdf *= density_factor(&n.prob, q);
-            match n.child[q] {
+            let (ix, iy) = quadrant_bits(p, depth);
+            pdf *= n.density_factor(ix, iy);
+            match n.child[ix | iy << 1] {
                 NO_CHILD => return pdf,
-                c => {
-                    node = c as usize;
-                    s = local;
-                }
+                c => node = usize::from(c),
             }
+            depth += 1;
         }
     }
 
@@ -181,12 +222,11 @@ impl SamplingTree {
         let mut stack = vec![(0usize, DirectionalCell::ROOT, 1.0f32)];
         while let Some((node, cell, mass)) = stack.pop() {
             let n = &self.nodes[node];
-            let total = (n.prob[0] + n.prob[2]) + (n.prob[1] + n.prob[3]);
             for q in 0..4 {
-                let m = mass * n.prob[q] / total;
+                let m = mass * n.px[q & 1] * n.py[q & 1][q >> 1];
                 match n.child[q] {
                     NO_CHILD => out.push((cell.child(q), m)),
-                    c => stack.push((c as usize, cell.child(q), m)),
+                    c => stack.push((usize::from(c), cell.child(q), m)),
                 }
             }
         }
@@ -202,6 +242,9 @@ impl SamplingTree {
     }
 }
 
+/// A child slot of a recording node under construction that will become a leaf.
+const FREE: u32 = 0;
+
 /// The topology of the current iteration and the moments recorded into its leaves.
 #[derive(Clone, Debug)]
 pub(crate) struct RecordingTree {
@@ -213,15 +256,15 @@ pub(crate) struct RecordingTree {
 impl RecordingTree {
     /// One root with four empty leaves.
     fn root() -> Self {
-        Self::from_nodes(vec![[NO_CHILD; 4]])
+        Self::from_nodes(vec![[FREE; 4]])
     }
 
-    /// Builds a tree from interior nodes whose leaf slots are marked `NO_CHILD`: numbers the
+    /// Builds a tree from interior nodes whose leaf slots are marked `FREE`: numbers the
     /// leaves in node order and gives each a zeroed accumulator.
     fn from_nodes(mut nodes: Vec<[u32; 4]>) -> Self {
         let mut leaves = 0u32;
         for slot in nodes.iter_mut().flatten() {
-            if *slot == NO_CHILD {
+            if *slot == FREE {
                 *slot = LEAF_BIT | leaves;
                 leaves += 1;
             }
@@ -235,17 +278,18 @@ impl RecordingTree {
     /// Adds weights `(v/p, v²/p)` to the leaf that holds `s`.
     #[inline]
     pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
-        let mut s = s;
+        let p = fixed(s);
         let mut node = 0usize;
+        let mut depth = 1;
         loop {
-            let (q, local) = quadrant(s);
-            let slot = self.nodes[node][q];
+            let (ix, iy) = quadrant_bits(p, depth);
+            let slot = self.nodes[node][ix | iy << 1];
             if slot & LEAF_BIT != 0 {
                 self.moments[(slot & !LEAF_BIT) as usize].add(weights);
                 return;
             }
             node = slot as usize;
-            s = local;
+            depth += 1;
         }
     }
 
@@ -407,12 +451,16 @@ impl DirectionalTree {
                 .nodes
                 .iter()
                 .zip(&mass)
-                .map(|(slots, m)| {
-                    let node_total: f64 = m.iter().sum();
-                    SamplingNode {
-                        prob: m.map(|x| (x / node_total) as f32),
-                        child: slots.map(|s| if s & LEAF_BIT != 0 { NO_CHILD } else { s }),
-                    }
+                .map(|(slots, &m)| {
+                    // Interior indices fit: `max_nodes` is validated to at most `MAX_NODES`.
+                    let child = slots.map(|s| {
+                        if s & LEAF_BIT != 0 {
+                            NO_CHILD
+                        } else {
+                            s as u16
+                        }
+                    });
+                    SamplingNode::from_masses(m, child)
                 })
                 .collect(),
         };
@@ -430,7 +478,7 @@ impl DirectionalTree {
     /// which collapses whatever lay below it.
     fn refined_topology(&self, share: &[[f64; 4]], params: &RefineParams) -> (RecordingTree, u64) {
         let old = &self.recording.nodes;
-        let mut nodes: Vec<[u32; 4]> = vec![[NO_CHILD; 4]];
+        let mut nodes: Vec<[u32; 4]> = vec![[FREE; 4]];
         let mut heap = BinaryHeap::new();
         let push_children =
             |heap: &mut BinaryHeap<Candidate>, new: u32, old_node: Option<u32>, s: f64, d: u32| {
@@ -464,7 +512,7 @@ impl DirectionalTree {
                 continue;
             }
             let new = nodes.len() as u32;
-            nodes.push([NO_CHILD; 4]);
+            nodes.push([FREE; 4]);
             nodes[c.parent.0 as usize][c.parent.1] = new;
             push_children(&mut heap, new, c.old_node, c.share, c.cell_depth);
         }
@@ -492,8 +540,9 @@ mod tests {
         for s in [Vec2::ZERO, Vec2::new(0.7, 0.2), Vec2::splat(0.99)] {
             assert_eq!(t.pdf(s), 1.0);
         }
-        let (p, pdf, cell) = t.sample(Vec2::new(0.3, 0.8));
+        let (p, pdf, near_border) = t.sample(Vec2::new(0.3, 0.8));
         assert_eq!(pdf, 1.0);
-        assert!(cell.contains(p));
+        assert!(!near_border);
+        assert!((p - Vec2::new(0.3, 0.8)).abs().max_element() < 1e-6);
     }
 }

@@ -11,6 +11,13 @@ use std::collections::BinaryHeap;
 
 const LEAF_BIT: u32 = 1 << 31;
 
+/// Bits per axis of the fixed-point positions the descent uses.
+const FIXED_BITS: u32 = 24;
+
+/// Deepest spatial level: 20 splits per axis, cells a millionth of the scene on a side. Also
+/// keeps every level's bit within the `FIXED_BITS` of a coordinate.
+pub(crate) const MAX_SPATIAL_DEPTH: u32 = 60;
+
 /// A leaf of the spatial tree as inspection sees it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct SpatialLeaf {
@@ -24,6 +31,8 @@ pub(crate) struct SpatialLeaf {
 #[derive(Clone, Debug)]
 pub(crate) struct SpatialTree {
     cube: Aabb,
+    /// `2^FIXED_BITS / side`: maps cube coordinates to fixed point.
+    scale: f32,
     nodes: Vec<u32>,
 }
 
@@ -32,6 +41,7 @@ impl SpatialTree {
     pub(crate) fn new(cube: Aabb) -> Self {
         Self {
             cube,
+            scale: (1u32 << FIXED_BITS) as f32 / cube.extent().x,
             nodes: vec![LEAF_BIT],
         }
     }
@@ -45,20 +55,23 @@ impl SpatialTree {
     /// nearest leaf along each split; NaN coordinates go to the low side.
     #[inline]
     pub(crate) fn leaf_at(&self, p: Vec3) -> usize {
-        let p = p.to_array();
-        let mut lo = self.cube.min.to_array();
-        let mut size = self.cube.extent().to_array();
+        // Fixed point: at depth d the split bit is bit (FIXED_BITS − 1 − d/3) of axis d % 3.
+        // `as` saturates (NaN becomes 0) and `min` clamps the far side.
+        let max = (1u32 << FIXED_BITS) - 1;
+        let c = ((p - self.cube.min) * self.scale)
+            .to_array()
+            .map(|v| (v as u32).min(max));
         let mut node = self.nodes[0];
-        let mut axis = 0;
+        let (mut axis, mut shift) = (0, FIXED_BITS - 1);
         while node & LEAF_BIT == 0 {
-            size[axis] *= 0.5;
-            let mid = lo[axis] + size[axis];
-            let right = p[axis] >= mid;
-            if right {
-                lo[axis] = mid;
+            let bit = (c[axis] >> shift) & 1;
+            node = self.nodes[(node + bit) as usize];
+            if axis == 2 {
+                axis = 0;
+                shift -= 1;
+            } else {
+                axis += 1;
             }
-            node = self.nodes[node as usize + usize::from(right)];
-            axis = if axis == 2 { 0 } else { axis + 1 };
         }
         (node & !LEAF_BIT) as usize
     }
@@ -75,22 +88,16 @@ impl SpatialTree {
         max_nodes: usize,
         mut new_leaf: impl FnMut(usize) -> Option<usize>,
     ) -> u64 {
-        let mut heap: BinaryHeap<(u64, usize)> = self
-            .nodes
-            .iter()
-            .enumerate()
-            .filter(|(_, n)| *n & LEAF_BIT != 0)
-            .map(|(i, n)| (counts[(n & !LEAF_BIT) as usize], i))
-            .filter(|&(count, _)| count as f64 > threshold)
+        let mut heap: BinaryHeap<(u64, usize, u32)> = self
+            .leaf_nodes()
+            .map(|(node, leaf, depth)| (counts[leaf], node, depth))
+            .filter(|&(count, _, _)| count as f64 > threshold)
             .collect();
         let mut refused = 0;
-        while let Some((count, node)) = heap.pop() {
+        while let Some((count, node, depth)) = heap.pop() {
             let leaf = (self.nodes[node] & !LEAF_BIT) as usize;
-            let right = if self.nodes.len() + 2 <= max_nodes {
-                new_leaf(leaf)
-            } else {
-                None
-            };
+            let room = self.nodes.len() + 2 <= max_nodes && depth < MAX_SPATIAL_DEPTH;
+            let right = if room { new_leaf(leaf) } else { None };
             let Some(right) = right else {
                 refused += 1;
                 continue;
@@ -101,8 +108,8 @@ impl SpatialTree {
             self.nodes[node] = first;
             let half = count / 2;
             if half as f64 > threshold {
-                heap.push((half, first as usize));
-                heap.push((count - half, first as usize + 1));
+                heap.push((half, first as usize, depth + 1));
+                heap.push((count - half, first as usize + 1, depth + 1));
             }
         }
         refused
@@ -111,15 +118,30 @@ impl SpatialTree {
     /// Every leaf with its box and depth.
     pub(crate) fn leaves(&self) -> Vec<SpatialLeaf> {
         let mut out = Vec::new();
+        self.walk(|_, leaf, bounds, depth| {
+            out.push(SpatialLeaf {
+                leaf,
+                bounds,
+                depth,
+            })
+        });
+        out
+    }
+
+    /// `(node, leaf, depth)` of every leaf.
+    fn leaf_nodes(&self) -> impl Iterator<Item = (usize, usize, u32)> {
+        let mut out = Vec::new();
+        self.walk(|node, leaf, _, depth| out.push((node, leaf, depth)));
+        out.into_iter()
+    }
+
+    /// Calls `f(node, leaf, bounds, depth)` for every leaf, depth first.
+    fn walk(&self, mut f: impl FnMut(usize, usize, Aabb, u32)) {
         let mut stack = vec![(0usize, self.cube, 0u32)];
         while let Some((node, bounds, depth)) = stack.pop() {
             let n = self.nodes[node];
             if n & LEAF_BIT != 0 {
-                out.push(SpatialLeaf {
-                    leaf: (n & !LEAF_BIT) as usize,
-                    bounds,
-                    depth,
-                });
+                f(node, (n & !LEAF_BIT) as usize, bounds, depth);
                 continue;
             }
             let axis = (depth % 3) as usize;
@@ -130,7 +152,6 @@ impl SpatialTree {
             stack.push((n as usize, lo, depth + 1));
             stack.push((n as usize + 1, hi, depth + 1));
         }
-        out
     }
 
     pub(crate) fn node_count(&self) -> usize {
