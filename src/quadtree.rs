@@ -96,6 +96,12 @@ fn quadrant_bits(p: [u32; 2], d: u32) -> (usize, usize) {
     )
 }
 
+/// `4^-depth`, the area of a cell at `depth`, built from its exponent bits (no `powi` call).
+#[inline]
+fn cell_area(depth: u32) -> f64 {
+    f64::from_bits(u64::from(1023 - 2 * depth) << 52)
+}
+
 /// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0 (which `clamp` would not do).
 #[inline]
 #[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
@@ -397,6 +403,45 @@ impl Ord for Candidate {
     }
 }
 
+/// The cells refinement has still to decide on: a stack (depth first) or a max-heap by share.
+trait Frontier {
+    fn push(&mut self, c: Candidate);
+    fn pop(&mut self) -> Option<Candidate>;
+    /// Whether cells come out largest share first.
+    fn ordered(&self) -> bool;
+}
+
+impl Frontier for Vec<Candidate> {
+    fn push(&mut self, c: Candidate) {
+        Vec::push(self, c);
+    }
+    fn pop(&mut self) -> Option<Candidate> {
+        Vec::pop(self)
+    }
+    fn ordered(&self) -> bool {
+        false
+    }
+}
+
+impl Frontier for BinaryHeap<Candidate> {
+    fn push(&mut self, c: Candidate) {
+        BinaryHeap::push(self, c);
+    }
+    fn pop(&mut self) -> Option<Candidate> {
+        BinaryHeap::pop(self)
+    }
+    fn ordered(&self) -> bool {
+        true
+    }
+}
+
+/// A grown topology: interior nodes with leaf slots `FREE`, and what the cap did.
+struct Grown {
+    nodes: Vec<[u32; 4]>,
+    refused: u64,
+    gave_up: bool,
+}
+
 impl DirectionalTree {
     /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
     /// (empty) recording topology. A tree that recorded nothing keeps what it had learned.
@@ -415,8 +460,7 @@ impl DirectionalTree {
                 if slot & LEAF_BIT != 0 {
                     let k = (slot & !LEAF_BIT) as usize;
                     let m = rec.moments[k].get();
-                    let area = 0.25f64.powi(depth[i] as i32 + 1);
-                    leaf_mass[k] = params.rule.mass(area, m.sum, m.sum_sq);
+                    leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), m.sum, m.sum_sq);
                 }
             }
         }
@@ -429,7 +473,7 @@ impl DirectionalTree {
         let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
         let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
         for i in (0..rec.nodes.len()).rev() {
-            let area = 0.25f64.powi(depth[i] as i32 + 1);
+            let area = cell_area(depth[i] + 1);
             for (q, &slot) in rec.nodes[i].iter().enumerate() {
                 let (s, m) = if slot & LEAF_BIT != 0 {
                     let a = if lit {
@@ -476,12 +520,33 @@ impl DirectionalTree {
     /// children's shares come from the ended iteration where it was interior, or split evenly
     /// where it was a leaf — so one refine can add several levels); every other cell is a leaf,
     /// which collapses whatever lay below it.
+    ///
+    /// Depth first while the node cap is not reached; when it would be, the tree is grown again
+    /// largest share first, so the cap refuses the least important splits.
     fn refined_topology(&self, share: &[[f64; 4]], params: &RefineParams) -> (RecordingTree, u64) {
+        let mut grown = self.grow(share, params, Vec::new());
+        if grown.gave_up {
+            grown = self.grow(share, params, BinaryHeap::new());
+        }
+        (RecordingTree::from_nodes(grown.nodes), grown.refused)
+    }
+
+    /// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
+    /// refuses (and counts) further splits; an unordered one gives up.
+    fn grow(
+        &self,
+        share: &[[f64; 4]],
+        params: &RefineParams,
+        mut frontier: impl Frontier,
+    ) -> Grown {
         let old = &self.recording.nodes;
-        let mut nodes: Vec<[u32; 4]> = vec![[FREE; 4]];
-        let mut heap = BinaryHeap::new();
+        let mut out = Grown {
+            nodes: vec![[FREE; 4]],
+            refused: 0,
+            gave_up: false,
+        };
         let push_children =
-            |heap: &mut BinaryHeap<Candidate>, new: u32, old_node: Option<u32>, s: f64, d: u32| {
+            |frontier: &mut dyn Frontier, new: u32, old_node: Option<u32>, s: f64, d: u32| {
                 for q in 0..4 {
                     let (share, old_child) = match old_node {
                         Some(o) => {
@@ -490,7 +555,7 @@ impl DirectionalTree {
                         }
                         None => (s / 4.0, None),
                     };
-                    heap.push(Candidate {
+                    frontier.push(Candidate {
                         share,
                         cell_depth: d + 1,
                         old_node: old_child,
@@ -498,25 +563,25 @@ impl DirectionalTree {
                     });
                 }
             };
-        push_children(&mut heap, 0, Some(0), 1.0, 0);
-        let mut refused = 0u64;
-        while let Some(c) = heap.pop() {
-            if c.share <= params.subdivision_threshold {
-                break;
-            }
-            if c.cell_depth >= params.max_depth {
+        push_children(&mut frontier, 0, Some(0), 1.0, 0);
+        while let Some(c) = frontier.pop() {
+            if c.share <= params.subdivision_threshold || c.cell_depth >= params.max_depth {
                 continue;
             }
-            if nodes.len() >= params.max_nodes as usize {
-                refused += 1;
+            if out.nodes.len() >= params.max_nodes as usize {
+                if !frontier.ordered() {
+                    out.gave_up = true;
+                    return out;
+                }
+                out.refused += 1;
                 continue;
             }
-            let new = nodes.len() as u32;
-            nodes.push([FREE; 4]);
-            nodes[c.parent.0 as usize][c.parent.1] = new;
-            push_children(&mut heap, new, c.old_node, c.share, c.cell_depth);
+            let new = out.nodes.len() as u32;
+            out.nodes.push([FREE; 4]);
+            out.nodes[c.parent.0 as usize][c.parent.1] = new;
+            push_children(&mut frontier, new, c.old_node, c.share, c.cell_depth);
         }
-        (RecordingTree::from_nodes(nodes), refused)
+        out
     }
 
     /// Bytes held by both buffers.

@@ -4,6 +4,10 @@
 //! of the first of its two children (stored side by side). Children split their parent at the
 //! midpoint of one axis, cycling x → y → z with depth, so a node's box is never stored: the
 //! descent halves the root cube as it goes. Four bytes per node keep the whole tree in cache.
+//!
+//! Positions are converted once to 24-bit fixed point per axis, so each level is a bit test.
+//! The first 12 levels (4 per axis) are skipped through a 16³ lookup grid that stores, for each
+//! grid cell, where the descent stands after them: a query then walks only the levels below.
 
 use crate::Aabb;
 use glam::Vec3;
@@ -13,6 +17,9 @@ const LEAF_BIT: u32 = 1 << 31;
 
 /// Bits per axis of the fixed-point positions the descent uses.
 const FIXED_BITS: u32 = 24;
+
+/// Levels per axis resolved by the lookup grid (16³ cells, 16 KiB).
+const GRID_BITS: u32 = 4;
 
 /// Deepest spatial level: 20 splits per axis, cells a millionth of the scene on a side. Also
 /// keeps every level's bit within the `FIXED_BITS` of a coordinate.
@@ -34,16 +41,22 @@ pub(crate) struct SpatialTree {
     /// `2^FIXED_BITS / side`: maps cube coordinates to fixed point.
     scale: f32,
     nodes: Vec<u32>,
+    /// For each cell of the lookup grid, the node entry reached after `3·GRID_BITS` levels (or
+    /// the leaf reached before).
+    grid: Box<[u32]>,
 }
 
 impl SpatialTree {
     /// A tree with one leaf (directional tree 0) covering `cube`.
     pub(crate) fn new(cube: Aabb) -> Self {
-        Self {
+        let mut tree = Self {
             cube,
             scale: (1u32 << FIXED_BITS) as f32 / cube.extent().x,
             nodes: vec![LEAF_BIT],
-        }
+            grid: vec![0; 1 << (3 * GRID_BITS)].into_boxed_slice(),
+        };
+        tree.build_grid();
+        tree
     }
 
     /// The cube the tree partitions.
@@ -55,14 +68,27 @@ impl SpatialTree {
     /// nearest leaf along each split; NaN coordinates go to the low side.
     #[inline]
     pub(crate) fn leaf_at(&self, p: Vec3) -> usize {
-        // Fixed point: at depth d the split bit is bit (FIXED_BITS − 1 − d/3) of axis d % 3.
-        // `as` saturates (NaN becomes 0) and `min` clamps the far side.
+        let c = self.fixed(p);
+        let g = c.map(|v| v >> (FIXED_BITS - GRID_BITS));
+        let cell = (g[0] | g[1] << GRID_BITS | g[2] << (2 * GRID_BITS)) as usize;
+        self.descend(c, self.grid[cell], FIXED_BITS - 1 - GRID_BITS)
+    }
+
+    /// `p` in fixed point: `FIXED_BITS` bits per axis over the cube. `as` saturates (NaN and
+    /// the near side become 0) and `min` clamps the far side.
+    #[inline]
+    fn fixed(&self, p: Vec3) -> [u32; 3] {
         let max = (1u32 << FIXED_BITS) - 1;
-        let c = ((p - self.cube.min) * self.scale)
+        ((p - self.cube.min) * self.scale)
             .to_array()
-            .map(|v| (v as u32).min(max));
-        let mut node = self.nodes[0];
-        let (mut axis, mut shift) = (0, FIXED_BITS - 1);
+            .map(|v| (v as u32).min(max))
+    }
+
+    /// Walks down from node entry `node`, whose children split the x axis at bit `shift`:
+    /// at depth d the split bit is bit (FIXED_BITS − 1 − d/3) of axis d % 3.
+    #[inline]
+    fn descend(&self, c: [u32; 3], mut node: u32, mut shift: u32) -> usize {
+        let mut axis = 0;
         while node & LEAF_BIT == 0 {
             let bit = (c[axis] >> shift) & 1;
             node = self.nodes[(node + bit) as usize];
@@ -74,6 +100,25 @@ impl SpatialTree {
             }
         }
         (node & !LEAF_BIT) as usize
+    }
+
+    /// Recomputes the lookup grid: where the descent of each grid cell stands after
+    /// `3·GRID_BITS` levels.
+    fn build_grid(&mut self) {
+        let n = 1u32 << GRID_BITS;
+        for i in 0..self.grid.len() as u32 {
+            let g = [i % n, (i / n) % n, i / (n * n)];
+            let c = g.map(|v| v << (FIXED_BITS - GRID_BITS));
+            let mut node = self.nodes[0];
+            for depth in 0..3 * GRID_BITS {
+                if node & LEAF_BIT != 0 {
+                    break;
+                }
+                let bit = (c[(depth % 3) as usize] >> (FIXED_BITS - 1 - depth / 3)) & 1;
+                node = self.nodes[(node + bit) as usize];
+            }
+            self.grid[i as usize] = node;
+        }
     }
 
     /// Splits busy leaves: a leaf with `count > threshold` samples splits in two, each child
@@ -112,6 +157,7 @@ impl SpatialTree {
                 heap.push((count - half, first as usize + 1, depth + 1));
             }
         }
+        self.build_grid();
         refused
     }
 
@@ -159,7 +205,7 @@ impl SpatialTree {
     }
 
     pub(crate) fn bytes(&self) -> usize {
-        std::mem::size_of_val(self.nodes.as_slice())
+        std::mem::size_of_val(self.nodes.as_slice()) + std::mem::size_of_val(&*self.grid)
     }
 }
 
@@ -184,6 +230,39 @@ mod tests {
             assert!((l.bounds.extent() - Vec3::splat(0.5)).abs().max_element() < 1e-6);
             assert_eq!(t.leaf_at(l.bounds.center()), l.leaf);
         }
+    }
+
+    #[test]
+    fn grid_lookup_agrees_with_a_full_descent() {
+        let mut t = SpatialTree::new(Aabb::new(Vec3::splat(-2.0), Vec3::splat(3.0)));
+        let mut next = 1;
+        // Uneven counts: some leaves stop above the grid's depth, some go far below it.
+        let counts: Vec<u64> = (0..1).map(|_| 1 << 20).collect();
+        t.split(&counts, 1000.0, usize::MAX, |_| {
+            next += 1;
+            Some(next - 1)
+        });
+        let counts: Vec<u64> = (0..next)
+            .map(|i| if i % 3 == 0 { 1 << 14 } else { 0 })
+            .collect();
+        t.split(&counts, 100.0, usize::MAX, |_| {
+            next += 1;
+            Some(next - 1)
+        });
+        let mut state = 7u64;
+        for _ in 0..100_000 {
+            let mut r = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 40) as f32 / (1u64 << 24) as f32 * 5.0 - 2.0
+            };
+            let p = Vec3::new(r(), r(), r());
+            let full = t.descend(t.fixed(p), t.nodes[0], FIXED_BITS - 1);
+            assert_eq!(t.leaf_at(p), full);
+        }
+        let depths: Vec<u32> = t.leaves().iter().map(|l| l.depth).collect();
+        assert!(depths.iter().any(|&d| d < 12) && depths.iter().any(|&d| d > 12));
     }
 
     #[test]
