@@ -7,6 +7,10 @@
 //!
 //! Single-thread figures run inside a one-thread rayon pool; `record/2-threads` records the same
 //! batch split over two OS threads.
+//!
+//! `baseline/*` measure, in the same run, what the figures should be read against on a noisy
+//! machine: uniform sphere sampling (the trivial guide: one `sin_cos`), and the C library's
+//! `atan2f` (a fixed amount of floating-point work, to compare machines).
 
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
@@ -135,6 +139,31 @@ fn bench_query(c: &mut Criterion) {
     g.finish();
 }
 
+fn bench_baseline(c: &mut Criterion) {
+    let mut rng = Rng::new(13);
+    let us: Vec<Vec2> = (0..BATCH).map(|_| rng.next_vec2()).collect();
+    let mut g = c.benchmark_group("baseline");
+    g.throughput(Throughput::Elements(BATCH as u64));
+    g.bench_function("uniform-sample+pdf", |b| {
+        b.iter(|| {
+            us.iter()
+                .map(|&u| {
+                    sdguide::sphere::square_to_direction(black_box(u)).x
+                        + sdguide::sphere::INV_SPHERE_AREA
+                })
+                .sum::<f32>()
+        })
+    });
+    g.bench_function("libm-atan2f", |b| {
+        b.iter(|| {
+            us.iter()
+                .map(|&u| black_box(u.y).atan2(black_box(u.x)))
+                .sum::<f32>()
+        })
+    });
+    g.finish();
+}
+
 fn bench_refine(c: &mut Criterion) {
     let field = trained().clone();
     // One iteration's worth of samples at the trained state, then refine a fresh copy each time.
@@ -157,5 +186,11 @@ fn bench_refine(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_record, bench_query, bench_refine);
+criterion_group!(
+    benches,
+    bench_baseline,
+    bench_record,
+    bench_query,
+    bench_refine
+);
 criterion_main!(benches);

@@ -175,17 +175,17 @@ impl SamplingTree {
         let mut node = 0usize;
         loop {
             let n = &self.nodes[node];
-            // Branch-free: with random `u` each choice is a coin flip no predictor can learn.
-            // The lower/upper choice is made for both columns at once, off the x chain.
+            // Branch-free: with random `u` each choice is a coin flip no predictor can learn, so
+            // choices become indices and 0/1 factors (both exact), never jumps. The lower/upper
+            // choice is made for both columns at once, off the x chain.
             let left = w.x * n.px[0];
             let ix = usize::from(u.x >= a.x + left);
-            let lower = [w.y * n.py[0][0], w.y * n.py[1][0]];
-            let upper = [u.y >= a.y + lower[0], u.y >= a.y + lower[1]];
-            a.x += [0.0, left][ix];
-            w.x = [left, w.x * n.px[1]][ix];
-            let iy = usize::from(upper[ix]);
-            a.y += [0.0, lower[ix]][iy];
-            w.y = [lower[ix], w.y * n.py[ix][1]][iy];
+            let up = [u.y >= a.y + w.y * n.py[0][0], u.y >= a.y + w.y * n.py[1][0]];
+            let iy = usize::from(up[0]) & (ix ^ 1) | usize::from(up[1]) & ix;
+            a.x += left * ix as f32;
+            w.x *= n.px[ix];
+            a.y += w.y * n.py[ix][0] * iy as f32;
+            w.y *= n.py[ix][iy];
             pdf *= n.density_factor(ix, iy);
             cell = [2 * cell[0] + ix as u32, 2 * cell[1] + iy as u32];
             depth += 1;
