@@ -24,6 +24,7 @@ const BATCH: usize = 1 << 16;
 fn workload() -> Workload {
     Workload {
         light: LightField::standard(),
+        lobe_noise: 1.0,
         seed: 2024,
     }
 }

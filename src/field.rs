@@ -8,7 +8,7 @@
 use crate::moments::weights;
 use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
 use crate::spatial::SpatialTree;
-use crate::sphere::{INV_SPHERE_AREA, direction_to_square, normalize, square_to_direction};
+use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
     Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason, Sample,
@@ -109,7 +109,7 @@ impl GuidingField {
 
     #[inline]
     fn try_record(&self, sample: &Sample) -> Result<(), RejectReason> {
-        let direction = sample.check()?;
+        let square = sample.check()?;
         let cube = self.spatial.cube();
         let tolerance = Vec3::splat(POSITION_TOLERANCE * cube.extent().x);
         let p = sample.position;
@@ -117,10 +117,8 @@ impl GuidingField {
             return Err(RejectReason::OutOfBounds);
         }
         let tree = &self.trees[self.spatial.leaf_at(p)];
-        tree.recording.record(
-            direction_to_square(direction),
-            weights(sample.value, sample.pdf),
-        );
+        tree.recording
+            .record(square, weights(sample.value, sample.pdf));
         Ok(())
     }
 
@@ -279,19 +277,18 @@ impl DirectionalDistribution<'_> {
         let direction = square_to_direction(s);
         // The round trip through the sphere moves a point by rounding only; a point that close
         // to its leaf's border may come back in the neighbour, so report the density `pdf` finds.
-        let pdf = match square_of(direction) {
+        let pdf = match sphere::square_of(direction) {
             Some(back) if near_border => self.tree.pdf(back),
             _ => pdf,
         };
         (direction, pdf * INV_SPHERE_AREA)
     }
 
-    /// The solid-angle density of drawing `direction` (normalized here, see
-    /// [`sphere::normalize`](crate::sphere::normalize); a zero or non-finite direction has
-    /// density 0).
+    /// The solid-angle density of drawing `direction` (which need not be unit length; a zero or
+    /// non-finite direction has density 0).
     #[inline]
     pub fn pdf(&self, direction: Vec3) -> f32 {
-        match square_of(direction) {
+        match sphere::square_of(direction) {
             Some(s) => self.tree.pdf(s) * INV_SPHERE_AREA,
             None => 0.0,
         }
@@ -301,11 +298,4 @@ impl DirectionalDistribution<'_> {
     pub fn leaves(&self) -> Vec<(DirectionalCell, f32)> {
         self.tree.leaves()
     }
-}
-
-/// The square point of `direction` after normalizing it, or `None` for a zero or non-finite
-/// direction. `sample` and `pdf` both go through here, so they agree to the bit.
-#[inline]
-fn square_of(direction: Vec3) -> Option<Vec2> {
-    normalize(direction).map(direction_to_square)
 }

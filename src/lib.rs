@@ -82,3 +82,8 @@ mod tests {
         check::<DirectionalDistribution<'static>>();
     }
 }
+
+/// The README's examples, compiled and run as doctests.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

@@ -194,11 +194,12 @@ impl SamplingTree {
                 c => node = usize::from(c),
             }
         }
-        // 2^-depth from its exponent bits (depth ≤ 20, so the result is a normal f32).
+        // 2^∓depth from exponent bits (depth ≤ 20: both are normal f32), not `powi` calls.
         let size = f32::from_bits((127 - depth) << 23);
+        let inv_size = f32::from_bits((127 + depth) << 23);
         let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
         let origin = Vec2::new(cell[0] as f32, cell[1] as f32) * size;
-        let margin = ROUND_TRIP_BOUND / size;
+        let margin = ROUND_TRIP_BOUND * inv_size;
         let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
         (origin + local * size, pdf, near_border)
     }

@@ -1,6 +1,6 @@
 //! What a renderer records at a path vertex, and the checks that keep bad values out of the field.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// One recorded path vertex: at `position`, light of (scalar) value `value` arrived from
@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 ///
 /// ```
 /// use sdguide::Sample;
-/// use glam::Vec3;
+/// use glam::{Vec2, Vec3};
 /// let s = Sample::new(Vec3::new(0.5, 0.2, 0.1), Vec3::Z, 3.0, 0.25);
 /// assert!(s.check().is_ok());
 /// assert!(Sample::new(Vec3::ZERO, Vec3::Z, f32::NAN, 0.25).check().is_err());
@@ -39,9 +39,10 @@ impl Sample {
         }
     }
 
-    /// Checks the sample and returns its unit direction, or why the field rejects it.
+    /// Checks the sample and returns its direction's point on the unit square (see
+    /// [`sphere`](crate::sphere)), or why the field rejects it.
     #[inline]
-    pub fn check(&self) -> Result<Vec3, RejectReason> {
+    pub fn check(&self) -> Result<Vec2, RejectReason> {
         if !self.position.is_finite() {
             return Err(RejectReason::NonFinitePosition);
         }
@@ -51,7 +52,7 @@ impl Sample {
         if !(self.pdf > 0.0 && self.pdf.is_finite()) {
             return Err(RejectReason::BadPdf);
         }
-        crate::sphere::normalize(self.direction).ok_or(RejectReason::BadDirection)
+        crate::sphere::square_of(self.direction).ok_or(RejectReason::BadDirection)
     }
 }
 

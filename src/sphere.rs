@@ -64,7 +64,29 @@ fn normalize_rescaled(d: Vec3) -> Option<Vec3> {
     Some(d / d.length())
 }
 
-/// Maps a unit direction to its point on the unit square.
+/// Maps any finite non-zero direction (not necessarily unit) to its point on the unit square, or
+/// `None` for a zero or non-finite one. The length only scales `z`, and `atan2` ignores it, so
+/// the normalization runs beside the angle instead of before it.
+///
+/// ```
+/// use sdguide::sphere::{direction_to_square, square_of};
+/// use glam::Vec3;
+/// let d = Vec3::new(1.0, 2.0, 2.0);
+/// let s = square_of(d).unwrap();
+/// assert!((s - direction_to_square(d / 3.0)).abs().max_element() < 1e-6);
+/// assert_eq!(square_of(Vec3::ZERO), None);
+/// ```
+#[inline]
+pub fn square_of(d: Vec3) -> Option<Vec2> {
+    let len2 = d.length_squared();
+    if len2 > f32::MIN_POSITIVE && len2.is_finite() {
+        return Some(direction_to_square(Vec3::new(d.x, d.y, d.z / len2.sqrt())));
+    }
+    normalize_rescaled(d).map(direction_to_square)
+}
+
+/// Maps a unit direction to its point on the unit square. Only `z` needs unit length: the
+/// azimuth comes from `atan2(y, x)`, which any positive scale leaves alone.
 ///
 /// The direction must be normalized; the result lies in `[0, 1)²` (clamped against rounding).
 ///
@@ -108,8 +130,15 @@ fn atan2(y: f32, x: f32) -> f32 {
     ];
     let (ax, ay) = (x.abs(), y.abs());
     let t = ax.min(ay) / ax.max(ay).max(f32::MIN_POSITIVE);
+    // Estrin's scheme: a shorter dependency chain than Horner's for the same polynomial.
     let t2 = t * t;
-    let p = C.iter().rev().fold(0.0, |acc, &c| acc * t2 + c) * t;
+    let t4 = t2 * t2;
+    let t8 = t4 * t4;
+    let p01 = C[0] + C[1] * t2;
+    let p23 = C[2] + C[3] * t2;
+    let p45 = C[4] + C[5] * t2;
+    let p67 = C[6] + C[7] * t2;
+    let p = ((p01 + p23 * t4) + (p45 + p67 * t4) * t8) * t;
     let r = if ay > ax { FRAC_PI_2 - p } else { p };
     let r = if x < 0.0 { PI - r } else { r };
     r.copysign(y)
@@ -173,7 +202,7 @@ mod tests {
             if s.x <= ROUND_TRIP_BOUND || s.x >= 1.0 - ROUND_TRIP_BOUND {
                 continue;
             }
-            let back = direction_to_square(normalize(square_to_direction(s)).unwrap());
+            let back = square_of(square_to_direction(s)).unwrap();
             let dy = (back.y - s.y).abs();
             let err = (back.x - s.x).abs().max(dy.min(1.0 - dy));
             worst = worst.max(err);

@@ -165,11 +165,18 @@ pub fn room_bounds() -> crate::Aabb {
 ///
 /// Iteration `k` records `first_budget · 2^k` samples at [`room_point`]s, in parallel: each
 /// direction is drawn with probability ½ from the uniform sphere and ½ from the field's current
-/// distribution, and recorded with the mixture's pdf and the light's exact value.
+/// distribution, and recorded with the mixture's pdf and the light's value.
+///
+/// The value may be noisy as a path tracer's radiance estimates are: with `lobe_noise = K > 1`
+/// the lobes' contribution is multiplied by `ξ`, which is `K` with probability `1/K` and 0
+/// otherwise (`E[ξ] = 1`, `E[ξ²] = K`: rare large values), while the ambient term stays exact.
+/// The noise thus differs between directions, which is where the l2 rule departs from l1.
 #[derive(Clone, Debug)]
 pub struct Workload {
     /// The light the field learns.
     pub light: LightField,
+    /// `E[ξ²]` of the lobes' multiplicative noise; 1 for exact values.
+    pub lobe_noise: f32,
     /// Fixes every random number the workload draws.
     pub seed: u64,
 }
@@ -202,7 +209,48 @@ impl Workload {
             square_to_direction(u)
         };
         let pdf = 0.5 * INV_SPHERE_AREA + 0.5 * dist.pdf(d);
-        Sample::new(x, d, self.light.radiance(x, d), pdf)
+        Sample::new(x, d, self.value(x, d, rng), pdf)
+    }
+
+    /// One (possibly noisy) estimate of the light arriving at `x` from `d`; its expectation is
+    /// `light.radiance(x, d)`.
+    pub fn value(&self, x: Vec3, d: Vec3, rng: &mut Rng) -> f32 {
+        let lobes: f32 = self.light.lobes.iter().map(|l| l.eval(x, d)).sum();
+        let xi = if self.lobe_noise > 1.0 {
+            let hit = rng.next_f32() < 1.0 / self.lobe_noise;
+            if hit { self.lobe_noise } else { 0.0 }
+        } else {
+            1.0
+        };
+        self.light.ambient + lobes * xi
+    }
+
+    /// Estimates `∫ L(x, ω) dω` at `x` with `n` samples from `sample` (which maps two uniform
+    /// numbers to a direction and its solid-angle pdf), with the workload's noisy values, and
+    /// measures the estimator's relative variance against the exact integral.
+    pub fn estimate(
+        &self,
+        x: Vec3,
+        n: u64,
+        rng: &mut Rng,
+        mut sample: impl FnMut(Vec2) -> (Vec3, f32),
+    ) -> Estimate {
+        let (mut s1, mut s2) = (0.0f64, 0.0f64);
+        for _ in 0..n {
+            let (d, p) = sample(rng.next_vec2());
+            let w = f64::from(self.value(x, d, rng)) / f64::from(p);
+            s1 += w;
+            s2 += w * w;
+        }
+        let n = n as f64;
+        let mean = s1 / n;
+        let var = (s2 / n - mean * mean).max(0.0) * n / (n - 1.0);
+        let truth = self.light.integral();
+        Estimate {
+            mean,
+            relative_variance: var / (truth * truth),
+            standard_error: (var / n).sqrt(),
+        }
     }
 
     /// Trains `iterations` iterations with budgets `first_budget · 2^k`, refining after each.
@@ -223,33 +271,6 @@ pub struct Estimate {
     pub relative_variance: f64,
     /// The standard error of `mean`.
     pub standard_error: f64,
-}
-
-/// Estimates `∫ L(x, ω) dω` at `x` with `n` samples from `sample` (which returns a direction and
-/// its solid-angle pdf), and measures the estimator's relative variance against the exact value.
-pub fn estimate(
-    light: &LightField,
-    x: Vec3,
-    n: u64,
-    rng: &mut Rng,
-    mut sample: impl FnMut(Vec2) -> (Vec3, f32),
-) -> Estimate {
-    let (mut s1, mut s2) = (0.0f64, 0.0f64);
-    for _ in 0..n {
-        let (d, p) = sample(rng.next_vec2());
-        let w = f64::from(light.radiance(x, d)) / f64::from(p);
-        s1 += w;
-        s2 += w * w;
-    }
-    let n = n as f64;
-    let mean = s1 / n;
-    let var = (s2 / n - mean * mean).max(0.0) * n / (n - 1.0);
-    let truth = light.integral();
-    Estimate {
-        mean,
-        relative_variance: var / (truth * truth),
-        standard_error: (var / n).sqrt(),
-    }
 }
 
 #[cfg(test)]

@@ -94,6 +94,7 @@ fn queries_with_bad_arguments_stay_valid() {
     let mut field = field();
     Workload {
         light: LightField::standard(),
+        lobe_noise: 1.0,
         seed: 1,
     }
     .train(&mut field, 2, 20_000);

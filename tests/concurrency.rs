@@ -22,6 +22,7 @@ fn moments(field: &GuidingField) -> Vec<Moments> {
 fn concurrent_recording_equals_serial_recording() {
     let workload = Workload {
         light: LightField::standard(),
+        lobe_noise: 1.0,
         seed: 99,
     };
     let base = pretrained(&workload);

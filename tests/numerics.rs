@@ -5,7 +5,7 @@ mod common;
 
 use common::{cell_integrals, chi_square_bound, held_out_points, trained};
 use sdguide::LeafRule;
-use sdguide::synthetic::{LightField, Rng, estimate};
+use sdguide::synthetic::{LightField, Rng, Workload};
 
 /// Depth of the trained trees in these tests: the midpoint grid below resolves every leaf.
 const DEPTH: u32 = 9;
@@ -89,21 +89,25 @@ fn sample_histogram_matches_pdf_chi_square() {
 
 #[test]
 fn learned_estimator_is_unbiased_and_beats_uniform() {
-    let light = LightField::standard();
-    let truth = light.integral();
+    let workload = Workload {
+        light: LightField::standard(),
+        lobe_noise: 1.0,
+        seed: 0,
+    };
+    let truth = workload.light.integral();
     for rule in [LeafRule::L1, LeafRule::L2] {
         let field = trained(rule, 20, 5, 100_000);
         let mut rng = Rng::new(23);
         for x in held_out_points() {
             let dist = field.distribution(x);
-            let e = estimate(&light, x, 400_000, &mut rng, |u| dist.sample(u));
+            let e = workload.estimate(x, 400_000, &mut rng, |u| dist.sample(u));
             assert!(
                 (e.mean - truth).abs() < 4.0 * e.standard_error,
                 "{rule:?} at {x}: {} vs {truth} ± {}",
                 e.mean,
                 e.standard_error
             );
-            let uniform = estimate(&light, x, 400_000, &mut rng, |u| {
+            let uniform = workload.estimate(x, 400_000, &mut rng, |u| {
                 (
                     sdguide::sphere::square_to_direction(u),
                     sdguide::sphere::INV_SPHERE_AREA,

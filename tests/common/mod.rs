@@ -15,6 +15,7 @@ pub fn trained(rule: LeafRule, max_depth: u32, iterations: u32, first_budget: u6
     let mut field = GuidingField::new(sdguide::synthetic::room_bounds(), config).unwrap();
     Workload {
         light: LightField::standard(),
+        lobe_noise: 1.0,
         seed: 11,
     }
     .train(&mut field, iterations, first_budget);
