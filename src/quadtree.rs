@@ -510,7 +510,7 @@ impl DirectionalTree {
                 .collect(),
         };
 
-        // 3. The next topology: split the largest shares first while they exceed ρ.
+        // 3. The next topology, from the same shares: split while a share exceeds ρ.
         let (recording, refused) = self.refined_topology(&share, params);
         self.sampling = sampling;
         self.recording = recording;

@@ -36,23 +36,31 @@ const HAND_BUILT: [(usize, f32, f32); 5] = [
     (3, 0.0, 1.0),
 ];
 
+/// `S1` and `S2` of the hand-built quadrants.
+const S1: [f64; 4] = [2.0, 4.0, 1.5, 0.0];
+const S2: [f64; 4] = [2.0, 8.0, 4.5, 0.0];
+
+/// One spatial leaf that recorded the hand-built case and refined once.
+fn hand_built(rule: LeafRule) -> GuidingField {
+    let config = GuidingConfig {
+        rule,
+        spatial_threshold: 1e9,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(unit_box(), config).unwrap();
+    record(&field, &HAND_BUILT);
+    field.refine();
+    field
+}
+
 #[test]
 fn leaf_masses_follow_the_closed_form() {
-    let s1 = [2.0f64, 4.0, 1.5, 0.0];
-    let s2 = [2.0f64, 8.0, 4.5, 0.0];
     for rule in [LeafRule::L1, LeafRule::L2] {
-        let config = GuidingConfig {
-            rule,
-            spatial_threshold: 1e9,
-            ..GuidingConfig::default()
-        };
-        let eps = f64::from(config.uniform_fraction);
-        let mut field = GuidingField::new(unit_box(), config).unwrap();
-        record(&field, &HAND_BUILT);
-        field.refine();
+        let field = hand_built(rule);
+        let eps = f64::from(field.config().uniform_fraction);
         let raw: Vec<f64> = match rule {
-            LeafRule::L1 => s1.to_vec(),
-            LeafRule::L2 => s2.iter().map(|s| (0.25 * s).sqrt()).collect(),
+            LeafRule::L1 => S1.to_vec(),
+            LeafRule::L2 => S2.iter().map(|s| (0.25 * s).sqrt()).collect(),
         };
         let total: f64 = raw.iter().sum();
         let dist = field.distribution(Vec3::splat(0.5));
@@ -74,16 +82,10 @@ fn leaf_masses_follow_the_closed_form() {
 
 #[test]
 fn one_refine_splits_several_levels_and_leaves_dark_cells_whole() {
-    let config = GuidingConfig {
-        spatial_threshold: 1e9,
-        ..GuidingConfig::default()
-    };
-    let rho = f64::from(config.subdivision_threshold);
-    let mut field = GuidingField::new(unit_box(), config).unwrap();
-    record(&field, &HAND_BUILT);
-    field.refine();
+    let field = hand_built(LeafRule::L2);
+    let rho = f64::from(field.config().subdivision_threshold);
     // L2 shares of the four quadrants; a cell of share s splits while s/4^k > ρ.
-    let raw = [2.0f64, 8.0, 4.5, 0.0].map(|s: f64| (0.25 * s).sqrt());
+    let raw = S2.map(|s| (0.25 * s).sqrt());
     let total: f64 = raw.iter().sum();
     let cell = field.cells().next().unwrap();
     for (leaf, _) in cell.recorded() {
