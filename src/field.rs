@@ -11,7 +11,8 @@ use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason, Sample,
+    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason,
+    Rejections, Sample,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -46,15 +47,17 @@ const POSITION_TOLERANCE: f32 = 1e-3;
 /// ```
 #[derive(Clone, Debug)]
 pub struct GuidingField {
-    bounds: Aabb,
-    config: GuidingConfig,
-    spatial: SpatialTree,
-    trees: Vec<DirectionalTree>,
-    iteration: u32,
-    rejected: RejectCounters,
-    recorded_before: u64,
-    spatial_refused: u64,
-    directional_refused: u64,
+    pub(crate) bounds: Aabb,
+    pub(crate) config: GuidingConfig,
+    pub(crate) spatial: SpatialTree,
+    pub(crate) trees: Vec<DirectionalTree>,
+    pub(crate) iteration: u32,
+    /// Rejections in the current iteration (folded into `rejected_before` by `refine`).
+    pub(crate) rejected: RejectCounters,
+    pub(crate) rejected_before: Rejections,
+    pub(crate) recorded_before: u64,
+    pub(crate) spatial_refused: u64,
+    pub(crate) directional_refused: u64,
 }
 
 impl GuidingField {
@@ -82,6 +85,7 @@ impl GuidingField {
             trees: vec![DirectionalTree::default()],
             iteration: 0,
             rejected: RejectCounters::default(),
+            rejected_before: Rejections::default(),
             recorded_before: 0,
             spatial_refused: 0,
             directional_refused: 0,
@@ -153,6 +157,7 @@ impl GuidingField {
             .collect();
         let counts: Vec<u64> = outcomes.iter().map(|o| o.samples).collect();
         self.recorded_before += counts.iter().sum::<u64>();
+        self.rejected_before = self.rejected_before.plus(&self.rejected.take());
         self.directional_refused += outcomes.iter().map(|o| o.refused).sum::<u64>();
 
         let threshold = f64::from(c.spatial_threshold) * 2f64.powf(0.5 * f64::from(self.iteration));
@@ -181,7 +186,7 @@ impl GuidingField {
             spatial_nodes: self.spatial.node_count() as u64,
             spatial_leaves: leaves.len() as u64,
             spatial_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
-            rejected: self.rejected.get(),
+            rejected: self.rejected_before.plus(&self.rejected.get()),
             spatial_splits_refused: self.spatial_refused,
             directional_splits_refused: self.directional_refused,
             bytes: self.bytes(),

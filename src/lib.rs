@@ -14,6 +14,10 @@
 //!   record   render threads, &self, lock-free     Sample ─► spatial::leaf_at ─► quadtree leaf moments
 //!   refine   between iterations, &mut self        moments ─► rule masses ─► sampling tree + new topology
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω)
+//!
+//!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
+//!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
+//!   merge    GuidingField::merge                   worker fields ─► summed statistics ─► refine
 //! ```
 //!
 //! ```
@@ -43,6 +47,8 @@
 //! - `quadtree`: the double-buffered directional quadtree (sample, pdf, record, refine).
 //! - `spatial`: the binary tree over the scene's bounding cube.
 //! - `field`: [`GuidingField`], which ties them together.
+//! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
+//! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`synthetic`]: analytic light fields and a training workload for tests and benchmarks.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
@@ -51,8 +57,10 @@
 #![forbid(unsafe_code)]
 
 mod bounds;
+mod cache;
 mod config;
 mod field;
+mod merge;
 mod moments;
 mod quadtree;
 mod rule;
@@ -63,8 +71,10 @@ mod stats;
 pub mod synthetic;
 
 pub use bounds::Aabb;
+pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
 pub use field::{DirectionalDistribution, GuidingField, SpatialCell};
+pub use merge::MergeError;
 pub use moments::Moments;
 pub use quadtree::DirectionalCell;
 pub use rule::LeafRule;

@@ -91,6 +91,22 @@ impl AtomicMoments {
         self.count.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// Adds another cell's sums (merging workers' statistics).
+    pub(crate) fn add_moments(&self, m: Moments) {
+        self.sum.add(m.sum);
+        self.sum_sq.add(m.sum_sq);
+        self.count.fetch_add(m.count, Ordering::Relaxed);
+    }
+
+    /// An accumulator holding `m` (loading a cache).
+    pub(crate) fn from_moments(m: Moments) -> Self {
+        Self {
+            sum: AtomicF64(AtomicU64::new(m.sum.to_bits())),
+            sum_sq: AtomicF64(AtomicU64::new(m.sum_sq.to_bits())),
+            count: AtomicU64::new(m.count),
+        }
+    }
+
     pub(crate) fn get(&self) -> Moments {
         Moments {
             sum: self.sum.get(),
@@ -102,11 +118,6 @@ impl AtomicMoments {
 
 impl Clone for AtomicMoments {
     fn clone(&self) -> Self {
-        let m = self.get();
-        Self {
-            sum: AtomicF64(AtomicU64::new(m.sum.to_bits())),
-            sum_sq: AtomicF64(AtomicU64::new(m.sum_sq.to_bits())),
-            count: AtomicU64::new(m.count),
-        }
+        Self::from_moments(self.get())
     }
 }

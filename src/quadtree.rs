@@ -24,10 +24,10 @@ use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 /// In a [`RecordingTree`] node, marks a child slot as a leaf; the low bits index its moments.
-const LEAF_BIT: u32 = 1 << 31;
+pub(crate) const LEAF_BIT: u32 = 1 << 31;
 
 /// In a [`SamplingTree`] node, the child index of a leaf (the root is node 0, nobody's child).
-const NO_CHILD: u16 = 0;
+pub(crate) const NO_CHILD: u16 = 0;
 
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
@@ -41,13 +41,13 @@ const FIXED_BITS: u32 = 24;
 /// evaluation divides: quadrant `q = ix + 2·iy` has probability `px[ix] · py[ix][iy]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
-struct SamplingNode {
+pub(crate) struct SamplingNode {
     /// Probability of the left (`ix = 0`) and right column.
-    px: [f32; 2],
+    pub(crate) px: [f32; 2],
     /// Within column `ix`: probability of the lower (`iy = 0`) and upper cell.
-    py: [[f32; 2]; 2],
+    pub(crate) py: [[f32; 2]; 2],
     /// Index of each quadrant's node, or [`NO_CHILD`] for a leaf.
-    child: [u16; 4],
+    pub(crate) child: [u16; 4],
 }
 
 impl SamplingNode {
@@ -147,7 +147,7 @@ impl DirectionalCell {
 /// The read-only, piecewise-constant density on the square that queries use.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct SamplingTree {
-    nodes: Box<[SamplingNode]>,
+    pub(crate) nodes: Box<[SamplingNode]>,
 }
 
 impl SamplingTree {
@@ -256,8 +256,8 @@ const FREE: u32 = 0;
 #[derive(Clone, Debug)]
 pub(crate) struct RecordingTree {
     /// Child slots: an interior node's index, or `LEAF_BIT | index into moments`.
-    nodes: Box<[[u32; 4]]>,
-    moments: Box<[AtomicMoments]>,
+    pub(crate) nodes: Box<[[u32; 4]]>,
+    pub(crate) moments: Box<[AtomicMoments]>,
 }
 
 impl RecordingTree {

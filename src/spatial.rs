@@ -13,7 +13,7 @@ use crate::Aabb;
 use glam::Vec3;
 use std::collections::BinaryHeap;
 
-const LEAF_BIT: u32 = 1 << 31;
+pub(crate) const LEAF_BIT: u32 = 1 << 31;
 
 /// Bits per axis of the fixed-point positions the descent uses.
 const FIXED_BITS: u32 = 24;
@@ -49,14 +49,24 @@ pub(crate) struct SpatialTree {
 impl SpatialTree {
     /// A tree with one leaf (directional tree 0) covering `cube`.
     pub(crate) fn new(cube: Aabb) -> Self {
+        Self::from_nodes(cube, vec![LEAF_BIT])
+    }
+
+    /// A tree over `cube` with the given (already validated) node entries.
+    pub(crate) fn from_nodes(cube: Aabb, nodes: Vec<u32>) -> Self {
         let mut tree = Self {
             cube,
             scale: (1u32 << FIXED_BITS) as f32 / cube.extent().x,
-            nodes: vec![LEAF_BIT],
+            nodes,
             grid: vec![0; 1 << (3 * GRID_BITS)].into_boxed_slice(),
         };
         tree.build_grid();
         tree
+    }
+
+    /// The node entries: `LEAF_BIT | leaf` or the index of the first of two children.
+    pub(crate) fn nodes(&self) -> &[u32] {
+        &self.nodes
     }
 
     /// The cube the tree partitions.

@@ -22,11 +22,35 @@ pub struct Rejections {
 impl Rejections {
     /// All rejections together.
     pub fn total(&self) -> u64 {
-        self.non_finite_position
-            + self.out_of_bounds
-            + self.bad_direction
-            + self.bad_value
-            + self.bad_pdf
+        self.to_array().iter().sum()
+    }
+
+    /// The counts in [`RejectReason`] order.
+    pub(crate) fn to_array(self) -> [u64; 5] {
+        [
+            self.non_finite_position,
+            self.out_of_bounds,
+            self.bad_direction,
+            self.bad_value,
+            self.bad_pdf,
+        ]
+    }
+
+    /// Counts from an array in [`RejectReason`] order.
+    pub(crate) fn from_array(c: [u64; 5]) -> Self {
+        Self {
+            non_finite_position: c[0],
+            out_of_bounds: c[1],
+            bad_direction: c[2],
+            bad_value: c[3],
+            bad_pdf: c[4],
+        }
+    }
+
+    /// Both sets of counts added (saturating: counters never wrap).
+    pub(crate) fn plus(&self, other: &Rejections) -> Rejections {
+        let (a, b) = (self.to_array(), other.to_array());
+        Self::from_array(std::array::from_fn(|i| a[i].saturating_add(b[i])))
     }
 }
 
@@ -72,14 +96,24 @@ impl RejectCounters {
     }
 
     pub(crate) fn get(&self) -> Rejections {
-        let c = |r: RejectReason| self.0[r as usize].load(Ordering::Relaxed);
-        Rejections {
-            non_finite_position: c(RejectReason::NonFinitePosition),
-            out_of_bounds: c(RejectReason::OutOfBounds),
-            bad_direction: c(RejectReason::BadDirection),
-            bad_value: c(RejectReason::BadValue),
-            bad_pdf: c(RejectReason::BadPdf),
+        Rejections::from_array(std::array::from_fn(|i| self.0[i].load(Ordering::Relaxed)))
+    }
+
+    /// The counts, leaving zeros behind (at the end of an iteration).
+    pub(crate) fn take(&mut self) -> Rejections {
+        Rejections::from_array(std::array::from_fn(|i| std::mem::take(self.0[i].get_mut())))
+    }
+
+    /// Adds counts (merging).
+    pub(crate) fn add(&self, r: &Rejections) {
+        for (c, v) in self.0.iter().zip(r.to_array()) {
+            c.fetch_add(v, Ordering::Relaxed);
         }
+    }
+
+    /// Counters holding `r` (loading a cache).
+    pub(crate) fn from_rejections(r: Rejections) -> Self {
+        Self(r.to_array().map(AtomicU64::new))
     }
 }
 
