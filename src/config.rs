@@ -44,8 +44,9 @@ pub struct GuidingConfig {
     /// counted in [`FieldStats`](crate::FieldStats). Must be ≥ 1.
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
-    /// footprint above it is refused and counted. Directional refinement of existing leaves is
-    /// bounded by `max_directional_nodes` instead. Must be ≥ 64 KiB.
+    /// footprint above it is refused, and each directional tree is held to its share of it
+    /// (`max_memory_bytes / (trees · 120 bytes)` interior nodes, 120 bytes bounding what one
+    /// node costs); refusals are counted. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
 }
 

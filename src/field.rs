@@ -6,7 +6,7 @@
 //! system guarantees no thread is recording or sampling while the trees change.
 
 use crate::moments::weights;
-use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
+use crate::quadtree::{BYTES_PER_NODE, DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
 use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
@@ -143,12 +143,17 @@ impl GuidingField {
     /// recorded nothing keeps its distribution.
     pub fn refine(&mut self) {
         let c = &self.config;
+        // The memory budget binds the directional trees too: what the spatial tree and the
+        // trees' fixed parts leave of it, shared evenly, caps each tree's interior nodes.
+        let trees = self.trees.len() as u64;
+        let fixed = self.spatial.bytes() as u64 + trees * TREE_FIXED_BYTES;
+        let per_tree = c.max_memory_bytes.saturating_sub(fixed) / (trees * BYTES_PER_NODE);
         let params = RefineParams {
             rule: c.rule,
             uniform_fraction: f64::from(c.uniform_fraction),
             subdivision_threshold: f64::from(c.subdivision_threshold),
             max_depth: c.max_directional_depth,
-            max_nodes: c.max_directional_nodes,
+            max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
         };
         let outcomes: Vec<RefineOutcome> = self
             .trees
@@ -234,6 +239,10 @@ impl GuidingField {
         (self.spatial.bytes() + self.trees.iter().map(tree_bytes).sum::<usize>()) as u64
     }
 }
+
+/// Bytes a directional tree costs besides its interior nodes: the struct itself and the moments
+/// of the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
+const TREE_FIXED_BYTES: u64 = (size_of::<DirectionalTree>() + 24) as u64;
 
 /// The heap and inline bytes of one spatial leaf's directional tree.
 fn tree_bytes(t: &DirectionalTree) -> usize {

@@ -32,6 +32,10 @@ pub(crate) const NO_CHILD: u16 = 0;
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
 
+/// Upper bound on the bytes one interior node costs a directional tree: its sampling node (32),
+/// its recording node (16), and the moments of the three leaves it adds net (3 × 24).
+pub(crate) const BYTES_PER_NODE: u64 = 32 + 16 + 3 * 24;
+
 /// Bits of the fixed-point square coordinates descents use: deeper than any tree (20 levels).
 const FIXED_BITS: u32 = 24;
 

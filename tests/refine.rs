@@ -246,3 +246,42 @@ fn spatial_caps_stop_splitting_and_say_so() {
         assert!(stats.bytes <= budget, "{stats:?}");
     }
 }
+
+#[test]
+fn the_memory_budget_bounds_directional_growth_too() {
+    // An absurd but valid configuration: every cell with any light wants to split, as deep and
+    // as wide as allowed. The budget (64 KiB) must still hold.
+    let config = GuidingConfig {
+        subdivision_threshold: 1e-30,
+        max_directional_nodes: 65535,
+        spatial_threshold: 50.0,
+        max_memory_bytes: 64 * 1024,
+        ..GuidingConfig::default()
+    };
+    let budget = config.max_memory_bytes;
+    let mut field = GuidingField::new(unit_box(), config).unwrap();
+    for _ in 0..4 {
+        for i in 0..20_000 {
+            let p = Vec3::new(
+                (i % 7) as f32 / 7.0,
+                (i % 11) as f32 / 11.0,
+                (i % 5) as f32 / 5.0,
+            );
+            let s = Vec2::new((i % 97) as f32 / 97.0, (i % 89) as f32 / 89.0);
+            field.record(&Sample::new(
+                p,
+                square_to_direction(s),
+                1.0,
+                INV_SPHERE_AREA,
+            ));
+        }
+        field.refine();
+        let stats = field.stats();
+        assert!(stats.bytes <= budget, "{stats:?}");
+    }
+    let stats = field.stats();
+    assert!(
+        stats.directional_splits_refused > 0 && stats.spatial_splits_refused > 0,
+        "{stats:?}"
+    );
+}
