@@ -7,6 +7,9 @@
 //! sampling and for sampling each learned distribution. The table gives the median over the
 //! points and the mean, which a few bad points can dominate (see the README's quality section).
 //!
+//! Each trained field is saved as a cache in `out/` (`demo-standard-l2.sdgc`, ...), for
+//! `examples/inspect.rs` to look at.
+//!
 //! ```text
 //! cargo run --release --example demo [-- --iterations 6 --budget 500000 --points 48 --samples 100000]
 //! ```
@@ -58,9 +61,10 @@ fn main() {
         "| light field | sampling | training | spatial leaves | directional leaves | relvar median | relvar mean |"
     );
     println!("|---|---|---|---|---|---|---|");
-    for (name, lobe_noise) in [
-        ("standard", 1.0),
-        ("standard, noisy lobes (E[ξ²] = 10)", 10.0),
+    std::fs::create_dir_all("out").expect("can create out/");
+    for (name, tag, lobe_noise) in [
+        ("standard", "standard", 1.0),
+        ("standard, noisy lobes (E[ξ²] = 10)", "noisy", 10.0),
     ] {
         let workload = Workload {
             light: LightField::standard(),
@@ -93,6 +97,8 @@ fn main() {
             let start = Instant::now();
             workload.train(&mut field, args.iterations, args.budget);
             let trained_in = start.elapsed();
+            let cache = format!("out/demo-{tag}-{}.sdgc", format!("{rule:?}").to_lowercase());
+            field.save_to_path(&cache).expect("can write the cache");
             let relvar = relvars(&workload, &points, args.samples, |x| {
                 Some(field.distribution(x))
             });

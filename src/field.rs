@@ -68,14 +68,14 @@ impl GuidingField {
     pub fn new(bounds: Aabb, config: GuidingConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let extent = bounds.extent();
-        if !(bounds.min.is_finite() && bounds.max.is_finite())
+        if !(bounds.min.is_finite() && bounds.max.is_finite() && extent.is_finite())
             || extent.min_element() < 0.0
             || extent.max_element() <= 0.0
         {
             return Err(ConfigError {
                 field: "bounds",
                 value: format!("{bounds:?}"),
-                requirement: "finite, with min <= max and some extent",
+                requirement: "finite, with min <= max, some extent, and an extent that is finite",
             });
         }
         Ok(Self {
@@ -161,7 +161,8 @@ impl GuidingField {
             .map(|t| t.refine(&params))
             .collect();
         let counts: Vec<u64> = outcomes.iter().map(|o| o.samples).collect();
-        self.recorded_before += counts.iter().sum::<u64>();
+        let recorded = counts.iter().fold(0u64, |a, &b| a.saturating_add(b));
+        self.recorded_before = self.recorded_before.saturating_add(recorded);
         self.rejected_before = self.rejected_before.plus(&self.rejected.take());
         self.directional_refused += outcomes.iter().map(|o| o.refused).sum::<u64>();
 
@@ -205,10 +206,21 @@ impl GuidingField {
                 .iter()
                 .map(|(c, _)| c.depth)
                 .fold(s.directional_depth, u32::max);
-            s.samples_recorded += t.recording.count();
+            s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
         }
-        s.samples_recorded_total = self.recorded_before + s.samples_recorded;
+        s.samples_recorded_total = self.recorded_before.saturating_add(s.samples_recorded);
         s
+    }
+
+    /// The spatial leaf whose distribution [`distribution`](Self::distribution) returns at
+    /// `position`, for inspection.
+    pub fn cell_at(&self, position: Vec3) -> SpatialCell<'_> {
+        let l = self.spatial.locate(position);
+        SpatialCell {
+            bounds: l.bounds,
+            depth: l.depth,
+            tree: &self.trees[l.leaf],
+        }
     }
 
     /// Every spatial leaf, for inspection: its box, its distribution and what it has recorded.

@@ -87,8 +87,13 @@ impl GuidingField {
             }
         }
         // Checked everything first: a refused merge leaves this field untouched.
-        for (a, b) in self.trees.iter().zip(&other.trees) {
-            for (x, y) in a.recording.moments.iter().zip(b.recording.moments.iter()) {
+        for (a, b) in self.trees.iter_mut().zip(&other.trees) {
+            for (x, y) in a
+                .recording
+                .moments
+                .iter_mut()
+                .zip(b.recording.moments.iter())
+            {
                 x.add_moments(y.get());
             }
         }

@@ -91,11 +91,15 @@ impl AtomicMoments {
         self.count.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Adds another cell's sums (merging workers' statistics).
-    pub(crate) fn add_moments(&self, m: Moments) {
-        self.sum.add(m.sum);
-        self.sum_sq.add(m.sum_sq);
-        self.count.fetch_add(m.count, Ordering::Relaxed);
+    /// Adds another cell's sums (merging workers' statistics), saturating: the count at
+    /// `u64::MAX` and the sums at `f64::MAX`, so a merged field always saves a loadable cache.
+    pub(crate) fn add_moments(&mut self, m: Moments) {
+        let mine = self.get();
+        *self = Self::from_moments(Moments {
+            sum: (mine.sum + m.sum).min(f64::MAX),
+            sum_sq: (mine.sum_sq + m.sum_sq).min(f64::MAX),
+            count: mine.count.saturating_add(m.count),
+        });
     }
 
     /// An accumulator holding `m` (loading a cache).

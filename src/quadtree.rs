@@ -323,9 +323,12 @@ impl RecordingTree {
         out
     }
 
-    /// Total samples recorded into the tree.
+    /// Total samples recorded into the tree (saturating: counts loaded from a file or merged
+    /// from many workers may be arbitrarily large).
     pub(crate) fn count(&self) -> u64 {
-        self.moments.iter().map(|m| m.get().count).sum()
+        self.moments
+            .iter()
+            .fold(0, |n, m| n.saturating_add(m.get().count))
     }
 
     pub(crate) fn bytes(&self) -> usize {

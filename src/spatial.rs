@@ -84,6 +84,29 @@ impl SpatialTree {
         self.descend(c, self.grid[cell], FIXED_BITS - 1 - GRID_BITS)
     }
 
+    /// The leaf containing `p` with its box and depth (what `leaf_at` finds, for inspection).
+    pub(crate) fn locate(&self, p: Vec3) -> SpatialLeaf {
+        let c = self.fixed(p);
+        let (mut node, mut bounds, mut depth) = (self.nodes[0], self.cube, 0u32);
+        while node & LEAF_BIT == 0 {
+            let axis = (depth % 3) as usize;
+            let bit = (c[axis] >> (FIXED_BITS - 1 - depth / 3)) & 1;
+            let mid = bounds.center()[axis];
+            if bit == 1 {
+                bounds.min[axis] = mid;
+            } else {
+                bounds.max[axis] = mid;
+            }
+            node = self.nodes[(node + bit) as usize];
+            depth += 1;
+        }
+        SpatialLeaf {
+            leaf: (node & !LEAF_BIT) as usize,
+            bounds,
+            depth,
+        }
+    }
+
     /// `p` in fixed point: `FIXED_BITS` bits per axis over the cube. `as` saturates (NaN and
     /// the near side become 0) and `min` clamps the far side.
     #[inline]
@@ -270,6 +293,13 @@ mod tests {
             let p = Vec3::new(r(), r(), r());
             let full = t.descend(t.fixed(p), t.nodes[0], FIXED_BITS - 1);
             assert_eq!(t.leaf_at(p), full);
+            let located = t.locate(p);
+            assert_eq!(located.leaf, full);
+            assert!(
+                located.bounds.contains(p),
+                "{p} outside {:?}",
+                located.bounds
+            );
         }
         let depths: Vec<u32> = t.leaves().iter().map(|l| l.depth).collect();
         assert!(depths.iter().any(|&d| d < 12) && depths.iter().any(|&d| d > 12));

@@ -104,11 +104,9 @@ impl RejectCounters {
         Rejections::from_array(std::array::from_fn(|i| std::mem::take(self.0[i].get_mut())))
     }
 
-    /// Adds counts (merging).
-    pub(crate) fn add(&self, r: &Rejections) {
-        for (c, v) in self.0.iter().zip(r.to_array()) {
-            c.fetch_add(v, Ordering::Relaxed);
-        }
+    /// Adds counts (merging), saturating.
+    pub(crate) fn add(&mut self, r: &Rejections) {
+        *self = Self::from_rejections(self.get().plus(r));
     }
 
     /// Counters holding `r` (loading a cache).

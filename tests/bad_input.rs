@@ -215,6 +215,7 @@ fn absurd_configs_and_bounds_are_typed_errors() {
         Aabb::new(Vec3::ZERO, Vec3::ZERO),
         Aabb::new(Vec3::ZERO, Vec3::new(1.0, NAN, 1.0)),
         Aabb::new(Vec3::splat(-INF), Vec3::ONE),
+        Aabb::new(Vec3::splat(-3e38), Vec3::splat(3e38)),
     ] {
         assert_eq!(
             GuidingField::new(bad, ok.clone()).unwrap_err().field,

@@ -1,0 +1,148 @@
+//! What the fuzz targets do with their input. Shared by the cargo-fuzz targets (nightly) and by
+//! `tests/fuzz_corpus.rs`, which replays the checked-in corpus on stable.
+//!
+//! Both functions must never panic on any input; the assertions inside are the library's
+//! guarantees (a loaded cache saves back identically, `sample` returns the pdf `pdf` gives, ...)
+//! and a failing one is a bug the fuzzer found.
+
+use glam::{Vec2, Vec3};
+use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Sample};
+
+/// At most this many operations and refines per input, so every input runs in milliseconds.
+const MAX_OPS: usize = 256;
+const MAX_REFINES: usize = 8;
+
+/// Arbitrary bytes as a cache: as given, and with the length field and checksum repaired so
+/// that mutations reach the structural validation behind the checksum.
+pub fn cache_load(data: &[u8]) {
+    load_and_check(data);
+    if data.len() >= 36 {
+        let mut fixed = data.to_vec();
+        let len = fixed.len();
+        fixed[24..32].copy_from_slice(&(len as u64).to_le_bytes());
+        let crc = crc32fast::hash(&fixed[..len - 4]);
+        fixed[len - 4..].copy_from_slice(&crc.to_le_bytes());
+        load_and_check(&fixed);
+    }
+}
+
+fn load_and_check(data: &[u8]) {
+    if let Ok(field) = GuidingField::from_bytes(data) {
+        let bytes = field.to_bytes();
+        let again = GuidingField::from_bytes(&bytes).expect("a saved field loads");
+        assert_eq!(again.to_bytes(), bytes, "load ∘ save is the identity");
+        let _ = field.stats();
+        check_query(&field, Vec3::splat(0.5), Vec2::new(0.3, 0.6));
+    }
+}
+
+/// Arbitrary bytes as a configuration, bounds, and a sequence of operations on a field.
+pub fn field_ops(data: &[u8]) {
+    let mut b = Bytes(data);
+    let Some(mut field) = field_from(&mut b) else {
+        return;
+    };
+    let mut refines = 0;
+    for _ in 0..MAX_OPS {
+        let Some(op) = b.u8() else { break };
+        match op % 6 {
+            // Record a sample, possibly many times.
+            0 | 1 => {
+                let (Some(p), Some(d), Some(v), Some(pdf), Some(n)) =
+                    (b.vec3(), b.vec3(), b.f32(), b.f32(), b.u8())
+                else {
+                    break;
+                };
+                for _ in 0..=(n % 16) {
+                    field.record(&Sample::new(p, d, v, pdf));
+                }
+            }
+            2 if refines < MAX_REFINES => {
+                field.refine();
+                refines += 1;
+            }
+            // Query, and record what the query drew, as a renderer would.
+            3 => {
+                let (Some(x), Some(u), Some(v)) = (b.vec3(), b.vec2(), b.f32()) else {
+                    break;
+                };
+                let (d, pdf) = check_query(&field, x, u);
+                field.record(&Sample::new(x, d, v, pdf));
+            }
+            4 => {
+                let bytes = field.to_bytes();
+                let loaded = GuidingField::from_bytes(&bytes).expect("a saved field loads");
+                assert_eq!(loaded.to_bytes(), bytes, "load ∘ save is the identity");
+                field = loaded;
+            }
+            _ => {
+                let s = field.stats();
+                assert!(s.spatial_nodes <= u64::from(field.config().max_spatial_nodes));
+            }
+        }
+    }
+}
+
+/// A field from fuzz bytes: every configuration field and the bounds are arbitrary (the memory
+/// budget is at most 16 MiB so that inputs stay cheap); invalid ones are refused by `new`.
+fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
+    let config = GuidingConfig {
+        rule: if b.u8()? & 1 == 0 {
+            LeafRule::L1
+        } else {
+            LeafRule::L2
+        },
+        spatial_threshold: b.f32()?,
+        subdivision_threshold: b.f32()?,
+        max_directional_depth: u32::from(b.u8()?),
+        uniform_fraction: b.f32()?,
+        max_directional_nodes: u32::from(b.u16()?),
+        max_spatial_nodes: u32::from(b.u16()?),
+        max_memory_bytes: u64::from(b.u8()?) << 16,
+    };
+    let bounds = Aabb::new(b.vec3()?, b.vec3()?);
+    GuidingField::new(bounds, config).ok()
+}
+
+/// Samples the distribution at `x` and checks what the library promises about the result.
+fn check_query(field: &GuidingField, x: Vec3, u: Vec2) -> (Vec3, f32) {
+    let dist = field.distribution(x);
+    let (d, pdf) = dist.sample(u);
+    assert!(
+        d.is_finite() && (d.length() - 1.0).abs() < 1e-4,
+        "direction {d}"
+    );
+    assert!(pdf > 0.0 && pdf.is_finite(), "pdf {pdf}");
+    assert_eq!(
+        pdf.to_bits(),
+        dist.pdf(d).to_bits(),
+        "sample and pdf disagree"
+    );
+    (d, pdf)
+}
+
+/// A cursor over fuzz bytes.
+struct Bytes<'a>(&'a [u8]);
+
+impl Bytes<'_> {
+    fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let (head, tail) = self.0.split_first_chunk::<N>()?;
+        self.0 = tail;
+        Some(*head)
+    }
+    fn u8(&mut self) -> Option<u8> {
+        Some(self.take::<1>()?[0])
+    }
+    fn u16(&mut self) -> Option<u16> {
+        Some(u16::from_le_bytes(self.take()?))
+    }
+    fn f32(&mut self) -> Option<f32> {
+        Some(f32::from_le_bytes(self.take()?))
+    }
+    fn vec2(&mut self) -> Option<Vec2> {
+        Some(Vec2::new(self.f32()?, self.f32()?))
+    }
+    fn vec3(&mut self) -> Option<Vec3> {
+        Some(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
+    }
+}

@@ -1,0 +1,155 @@
+//! Replays the fuzz targets' checked-in corpus on stable, so `cargo test` keeps every input the
+//! fuzzers were seeded with (and every crash they found, once added) passing.
+
+#[path = "../fuzz/harness.rs"]
+mod harness;
+
+use std::path::Path;
+
+fn corpus(target: &str) -> Vec<(String, Vec<u8>)> {
+    let dir = Path::new("fuzz/corpus").join(target);
+    let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| {
+            let path = e.unwrap().path();
+            (path.display().to_string(), std::fs::read(&path).unwrap())
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn cache_load_corpus_replays() {
+    let files = corpus("cache_load");
+    assert!(files.len() >= 3);
+    for (name, data) in files {
+        eprintln!("{name}");
+        harness::cache_load(&data);
+    }
+}
+
+#[test]
+fn field_ops_corpus_replays() {
+    let files = corpus("field_ops");
+    assert!(files.len() >= 3);
+    for (name, data) in files {
+        eprintln!("{name}");
+        harness::field_ops(&data);
+    }
+}
+
+/// Writes the seed corpus: `cargo test --test fuzz_corpus -- --ignored write_seed_corpus`.
+#[test]
+#[ignore = "writes the checked-in seed corpus"]
+fn write_seed_corpus() {
+    use sdguide::{Aabb, GuidingConfig, GuidingField};
+    let dir = Path::new("fuzz/corpus");
+    // cache_load: a real trained cache, an empty field's cache, a truncated cache.
+    let v1 = std::fs::read("tests/data/v1.sdgc").unwrap();
+    std::fs::write(dir.join("cache_load/trained"), &v1).unwrap();
+    let empty = GuidingField::new(
+        Aabb::new(glam::Vec3::ZERO, glam::Vec3::ONE),
+        GuidingConfig::default(),
+    )
+    .unwrap();
+    std::fs::write(dir.join("cache_load/empty"), empty.to_bytes()).unwrap();
+    std::fs::write(dir.join("cache_load/truncated"), &v1[..200]).unwrap();
+
+    // field_ops: a training session, bad inputs, and an absurd configuration.
+    let config = |c: f32, rho: f32, depth: u8, eps: f32, nodes: u16, spatial: u16, mem: u8| {
+        let mut v = vec![1u8];
+        for f in [c, rho] {
+            v.extend_from_slice(&f.to_le_bytes());
+        }
+        v.push(depth);
+        v.extend_from_slice(&eps.to_le_bytes());
+        v.extend_from_slice(&nodes.to_le_bytes());
+        v.extend_from_slice(&spatial.to_le_bytes());
+        v.push(mem);
+        for f in [0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0] {
+            v.extend_from_slice(&f.to_le_bytes());
+        }
+        v
+    };
+    let floats = |v: &mut Vec<u8>, fs: &[f32]| {
+        for f in fs {
+            v.extend_from_slice(&f.to_le_bytes());
+        }
+    };
+    let mut training = config(50.0, 0.01, 20, 0.01, 8192, 4096, 64);
+    for round in 0..4 {
+        for i in 0..60 {
+            let t = (i as f32 + 0.5) / 60.0;
+            training.push(3); // query and record
+            floats(
+                &mut training,
+                &[
+                    t,
+                    0.5 * t,
+                    1.0 - t,
+                    t,
+                    (t * 7.0).fract(),
+                    if i % 5 == 0 { 9.0 } else { 0.2 },
+                ],
+            );
+        }
+        training.push(if round % 2 == 0 { 2 } else { 4 }); // refine / save+load
+        training.push(2);
+    }
+    training.push(5);
+    std::fs::write(dir.join("field_ops/training"), training).unwrap();
+
+    let mut bad = config(12000.0, 0.01, 20, 0.01, 8192, 4096, 64);
+    let nan = f32::NAN;
+    let inf = f32::INFINITY;
+    for (p, d, v, pdf) in [
+        ([nan, 0.5, 0.5], [0.0, 0.0, 1.0], 1.0, 1.0),
+        ([0.5, 0.5, 9.0], [0.0, 0.0, 1.0], 1.0, 1.0),
+        ([0.5, 0.5, 0.5], [0.0, 0.0, 0.0], 1.0, 1.0),
+        ([0.5, 0.5, 0.5], [inf, 0.0, 1.0], 1.0, 1.0),
+        ([0.5, 0.5, 0.5], [0.0, 0.0, 1.0], -1.0, 1.0),
+        ([0.5, 0.5, 0.5], [0.0, 0.0, 1.0], 1.0, 0.0),
+        (
+            [0.5, 0.5, 0.5],
+            [0.0, 0.0, 1.0],
+            f32::MAX,
+            f32::from_bits(1),
+        ),
+    ] {
+        bad.push(0);
+        floats(&mut bad, &p);
+        floats(&mut bad, &d);
+        floats(&mut bad, &[v, pdf]);
+        bad.push(3);
+    }
+    bad.extend_from_slice(&[2, 3]);
+    floats(&mut bad, &[nan, inf, -inf, nan, nan, 1.0]);
+    bad.extend_from_slice(&[4, 5]);
+    std::fs::write(dir.join("field_ops/bad-input"), bad).unwrap();
+
+    let mut absurd = config(1.0, 1e-30, 20, 1e-30, 65535, 65535, 1);
+    for i in 0..100 {
+        let t = i as f32 / 100.0;
+        absurd.push(0);
+        floats(
+            &mut absurd,
+            &[
+                t,
+                t * t,
+                1.0 - t,
+                (t * 13.0).sin(),
+                (t * 7.0).cos(),
+                t,
+                1.0 + t,
+                0.1,
+            ],
+        );
+        absurd.push(200);
+        if i % 20 == 19 {
+            absurd.push(2);
+        }
+    }
+    absurd.extend_from_slice(&[4, 5]);
+    std::fs::write(dir.join("field_ops/absurd-config"), absurd).unwrap();
+}
