@@ -641,13 +641,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
     let max_node_depth = c.max_directional_depth - 1;
     let max_nodes = c.max_directional_nodes as usize;
 
-    let n = r.count(SAMPLING_NODE_LEN, "sampling nodes")?;
-    if n == 0 || n > max_nodes {
-        return Err(corrupt(
-            section,
-            format!("{n} sampling nodes, expected 1..={max_nodes}"),
-        ));
-    }
+    let n = node_count(r, SAMPLING_NODE_LEN, "sampling nodes", max_nodes)?;
     let mut sampling = Vec::with_capacity(n);
     for i in 0..n {
         let mut p = [0f32; 6];
@@ -678,13 +672,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
     })
     .map_err(|d| corrupt(section, format!("sampling tree: {d}")))?;
 
-    let n = r.count(RECORDING_NODE_LEN, "recording nodes")?;
-    if n == 0 || n > max_nodes {
-        return Err(corrupt(
-            section,
-            format!("{n} recording nodes, expected 1..={max_nodes}"),
-        ));
-    }
+    let n = node_count(r, RECORDING_NODE_LEN, "recording nodes", max_nodes)?;
     let mut nodes = Vec::with_capacity(n);
     for _ in 0..n {
         nodes.push([r.u32()?, r.u32()?, r.u32()?, r.u32()?]);
@@ -732,6 +720,18 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
             moments: moments.into_boxed_slice(),
         },
     })
+}
+
+/// A tree's node count: present in the bytes, and between 1 and the configuration's cap.
+fn node_count(r: &mut In<'_>, len: usize, what: &str, max: usize) -> Result<usize, CacheError> {
+    let n = r.count(len, what)?;
+    if n == 0 || n > max {
+        return Err(corrupt(
+            r.section,
+            format!("{n} {what}, expected 1..={max}"),
+        ));
+    }
+    Ok(n)
 }
 
 /// Checks that `children(i)` describes one tree over nodes `0..n` rooted at 0: every child

@@ -19,24 +19,24 @@ fn corpus(target: &str) -> Vec<(String, Vec<u8>)> {
     files
 }
 
-#[test]
-fn cache_load_corpus_replays() {
-    let files = corpus("cache_load");
-    assert!(files.len() >= 3);
+/// Runs `target` on every file of its corpus (and there must be a few).
+fn replay(target: &str, run: fn(&[u8])) {
+    let files = corpus(target);
+    assert!(files.len() >= 3, "{target}: {} files", files.len());
     for (name, data) in files {
         eprintln!("{name}");
-        harness::cache_load(&data);
+        run(&data);
     }
 }
 
 #[test]
+fn cache_load_corpus_replays() {
+    replay("cache_load", harness::cache_load);
+}
+
+#[test]
 fn field_ops_corpus_replays() {
-    let files = corpus("field_ops");
-    assert!(files.len() >= 3);
-    for (name, data) in files {
-        eprintln!("{name}");
-        harness::field_ops(&data);
-    }
+    replay("field_ops", harness::field_ops);
 }
 
 /// Writes the seed corpus: `cargo test --test fuzz_corpus -- --ignored write_seed_corpus`.
