@@ -99,9 +99,15 @@ impl GuidingField {
     /// just outside is recorded into the nearest cell.
     #[inline]
     pub fn record(&self, sample: &Sample) {
-        if let Err(reason) = self.try_record(sample) {
-            self.rejected.count(reason);
-        }
+        let _ = self.try_record(sample);
+    }
+
+    /// Records one sample like [`record`](Self::record), and says whether it was rejected (a
+    /// rejected sample is counted all the same).
+    #[inline]
+    pub fn try_record(&self, sample: &Sample) -> Result<(), RejectReason> {
+        self.insert(sample)
+            .inspect_err(|&reason| self.rejected.count(reason))
     }
 
     /// Records every sample of a batch (see [`record`](Self::record)).
@@ -112,7 +118,7 @@ impl GuidingField {
     }
 
     #[inline]
-    fn try_record(&self, sample: &Sample) -> Result<(), RejectReason> {
+    fn insert(&self, sample: &Sample) -> Result<(), RejectReason> {
         let square = sample.check()?;
         let cube = self.spatial.cube();
         let tolerance = Vec3::splat(POSITION_TOLERANCE * cube.extent().x);

@@ -1,0 +1,284 @@
+//! The C API's error paths: null pointers, non-finite inputs, bad configurations and bad cache
+//! bytes give status codes and messages, never a crash.
+
+use sdguide_c::*;
+use std::ffi::{CStr, CString};
+use std::ptr::{null, null_mut};
+
+fn last_error() -> String {
+    // SAFETY: `sdg_last_error` returns a valid NUL-terminated string owned by this thread.
+    unsafe { CStr::from_ptr(sdg_last_error()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+fn v(x: f32, y: f32, z: f32) -> sdg_vec3 {
+    sdg_vec3 { x, y, z }
+}
+
+fn config() -> sdg_config {
+    let mut c = std::mem::MaybeUninit::<sdg_config>::uninit();
+    // SAFETY: a valid out-pointer; `sdg_config_default` initializes it on success.
+    assert_eq!(
+        unsafe { sdg_config_default(c.as_mut_ptr()) },
+        sdg_status::Ok
+    );
+    // SAFETY: initialized by the successful call above.
+    unsafe { c.assume_init() }
+}
+
+fn field() -> *mut sdg_field {
+    let mut f = null_mut();
+    // SAFETY: valid pointers.
+    let status = unsafe { sdg_field_create(&config(), v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut f) };
+    assert_eq!(status, sdg_status::Ok);
+    f
+}
+
+#[test]
+fn null_pointers_are_errors_with_messages() {
+    let f = field();
+    let (mut d, mut p) = (sdg_vec3::default(), 0.0f32);
+    let mut out = null_mut();
+    // SAFETY: every pointer is either null or valid; null is what is being tested.
+    unsafe {
+        assert_eq!(sdg_config_default(null_mut()), sdg_status::NullPointer);
+        assert_eq!(
+            sdg_field_create(null(), v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+            sdg_status::NullPointer
+        );
+        assert!(last_error().contains("config"), "{}", last_error());
+        assert_eq!(
+            sdg_field_create(&config(), v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), null_mut()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(sdg_field_record(null(), null()), sdg_status::NullPointer);
+        assert_eq!(sdg_field_record(f, null()), sdg_status::NullPointer);
+        assert!(last_error().contains("sample"));
+        assert_eq!(
+            sdg_field_record_batch(f, null(), 3),
+            sdg_status::NullPointer
+        );
+        assert_eq!(sdg_field_record_batch(f, null(), 0), sdg_status::Ok);
+        assert_eq!(
+            sdg_field_sample(null(), v(0.5, 0.5, 0.5), 0.1, 0.2, &mut d, &mut p),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_sample(f, v(0.5, 0.5, 0.5), 0.1, 0.2, null_mut(), &mut p),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_pdf(f, v(0.5, 0.5, 0.5), v(0.0, 0.0, 1.0), null_mut()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_distribution(f, v(0.5, 0.5, 0.5), null_mut()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_distribution_sample(null(), 0.1, 0.2, &mut d, &mut p),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_distribution_pdf(null(), v(0.0, 0.0, 1.0), &mut p),
+            sdg_status::NullPointer
+        );
+        assert_eq!(sdg_field_refine(null_mut()), sdg_status::NullPointer);
+        assert_eq!(sdg_field_stats(f, null_mut()), sdg_status::NullPointer);
+        assert_eq!(sdg_field_save(f, null()), sdg_status::NullPointer);
+        assert_eq!(sdg_field_load(null(), &mut out), sdg_status::NullPointer);
+        assert_eq!(
+            sdg_field_save_to_buffer(f, null_mut(), null_mut()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_load_from_buffer(null(), 10, &mut out),
+            sdg_status::NullPointer
+        );
+        assert_eq!(sdg_field_merge(f, null()), sdg_status::NullPointer);
+        assert_eq!(sdg_field_merge(f, f), sdg_status::InvalidArgument);
+        // Destroying null is a no-op.
+        sdg_field_destroy(null_mut());
+        sdg_distribution_destroy(null_mut());
+        sdg_buffer_free(null_mut(), 0);
+        sdg_field_destroy(f);
+    }
+}
+
+#[test]
+fn non_finite_inputs_are_rejected_or_refused() {
+    let f = field();
+    let nan = f32::NAN;
+    let (mut d, mut p) = (sdg_vec3::default(), 0.0f32);
+    let mut dist = null_mut();
+    // SAFETY: valid pointers throughout.
+    unsafe {
+        // Recording: rejected and counted, not an error.
+        let bad = sdg_sample {
+            position: v(nan, 0.5, 0.5),
+            direction: v(0.0, 0.0, 1.0),
+            value: 1.0,
+            pdf: 1.0,
+        };
+        assert_eq!(sdg_field_record(f, &bad), sdg_status::SampleRejected);
+        let bad_pdf = sdg_sample {
+            position: v(0.5, 0.5, 0.5),
+            direction: v(0.0, 0.0, 1.0),
+            value: 1.0,
+            pdf: nan,
+        };
+        let good = sdg_sample {
+            pdf: 0.5,
+            ..bad_pdf
+        };
+        assert_eq!(
+            sdg_field_record_batch(f, [good, bad_pdf, good].as_ptr(), 3),
+            sdg_status::SampleRejected
+        );
+        let mut stats = sdg_stats::default();
+        assert_eq!(sdg_field_stats(f, &mut stats), sdg_status::Ok);
+        assert_eq!(
+            (stats.rejected[0], stats.rejected[4], stats.samples_recorded),
+            (1, 1, 2)
+        );
+        // Queries: a non-finite position, sample or direction is an invalid argument.
+        assert_eq!(
+            sdg_field_sample(f, v(nan, 0.5, 0.5), 0.1, 0.2, &mut d, &mut p),
+            sdg_status::InvalidArgument
+        );
+        assert!(last_error().contains("position"), "{}", last_error());
+        assert_eq!(
+            sdg_field_sample(f, v(0.5, 0.5, 0.5), nan, 0.2, &mut d, &mut p),
+            sdg_status::InvalidArgument
+        );
+        assert_eq!(
+            sdg_field_pdf(f, v(0.5, 0.5, 0.5), v(nan, 0.0, 1.0), &mut p),
+            sdg_status::InvalidArgument
+        );
+        assert_eq!(
+            sdg_field_distribution(f, v(0.5, f32::INFINITY, 0.5), &mut dist),
+            sdg_status::InvalidArgument
+        );
+        assert!(dist.is_null());
+        // Bad configurations and bounds.
+        let mut out = null_mut();
+        let c = sdg_config {
+            subdivision_threshold: 3.0,
+            ..config()
+        };
+        assert_eq!(
+            sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+            sdg_status::Config
+        );
+        assert!(
+            last_error().contains("subdivision_threshold"),
+            "{}",
+            last_error()
+        );
+        let c = sdg_config {
+            rule: 7,
+            ..config()
+        };
+        assert_eq!(
+            sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+            sdg_status::Config
+        );
+        assert_eq!(
+            sdg_field_create(&config(), v(1.0, 1.0, 1.0), v(0.0, 0.0, 0.0), &mut out),
+            sdg_status::Config
+        );
+        assert!(out.is_null());
+        sdg_field_destroy(f);
+    }
+}
+
+#[test]
+fn bad_cache_bytes_and_paths_are_errors_with_messages() {
+    let f = field();
+    let mut out = null_mut();
+    // SAFETY: valid pointers; the buffer is freed with what `save_to_buffer` returned.
+    unsafe {
+        let (mut data, mut len) = (null_mut(), 0usize);
+        assert_eq!(
+            sdg_field_save_to_buffer(f, &mut data, &mut len),
+            sdg_status::Ok
+        );
+        let bytes = std::slice::from_raw_parts_mut(data, len);
+        assert_eq!(
+            sdg_field_load_from_buffer(data, len, &mut out),
+            sdg_status::Ok
+        );
+        sdg_field_destroy(out);
+        out = null_mut();
+        assert_eq!(
+            sdg_field_load_from_buffer(data, len - 1, &mut out),
+            sdg_status::Cache
+        );
+        assert!(last_error().contains("truncated"), "{}", last_error());
+        bytes[0] = b'X';
+        assert_eq!(
+            sdg_field_load_from_buffer(data, len, &mut out),
+            sdg_status::Cache
+        );
+        assert!(last_error().contains("magic"), "{}", last_error());
+        assert!(out.is_null());
+        sdg_buffer_free(data, len);
+
+        let missing = CString::new("/nonexistent/dir/field.sdgc").unwrap();
+        assert_eq!(sdg_field_load(missing.as_ptr(), &mut out), sdg_status::Io);
+        assert_eq!(sdg_field_save(f, missing.as_ptr()), sdg_status::Io);
+        assert!(!last_error().is_empty());
+        sdg_field_destroy(f);
+    }
+}
+
+#[test]
+fn threads_record_and_query_while_another_refines() {
+    let f = field() as usize; // handles cross threads as addresses
+    std::thread::scope(|s| {
+        for t in 0..4 {
+            s.spawn(move || {
+                let f = f as *const sdg_field;
+                for i in 0..20_000 {
+                    let u = ((i * 7 + t) % 1000) as f32 / 1000.0;
+                    let (mut d, mut p) = (sdg_vec3::default(), 0.0f32);
+                    // SAFETY: the field outlives the scope; pointers are valid.
+                    unsafe {
+                        assert_eq!(
+                            sdg_field_sample(f, v(u, 0.5, 1.0 - u), u, 1.0 - u, &mut d, &mut p),
+                            sdg_status::Ok
+                        );
+                        let sample = sdg_sample {
+                            position: v(u, 0.5, 0.5),
+                            direction: d,
+                            value: d.z.max(0.0),
+                            pdf: p,
+                        };
+                        assert_eq!(sdg_field_record(f, &sample), sdg_status::Ok);
+                    }
+                }
+            });
+        }
+        s.spawn(move || {
+            for _ in 0..5 {
+                // SAFETY: valid handle; the lock makes refine exclusive.
+                assert_eq!(
+                    unsafe { sdg_field_refine(f as *mut sdg_field) },
+                    sdg_status::Ok
+                );
+                std::thread::yield_now();
+            }
+        });
+    });
+    let mut stats = sdg_stats::default();
+    // SAFETY: valid pointers; destroyed once.
+    unsafe {
+        assert_eq!(
+            sdg_field_stats(f as *const sdg_field, &mut stats),
+            sdg_status::Ok
+        );
+        assert_eq!(stats.samples_recorded_total, 80_000);
+        sdg_field_destroy(f as *mut sdg_field);
+    }
+}
