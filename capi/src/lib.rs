@@ -11,7 +11,9 @@
 //! threads at once; `sdg_field_refine` and `sdg_field_merge` take it exclusively, waiting for
 //! every shared user — including every live `sdg_distribution`, which holds the lock shared until
 //! destroyed. The lock costs one atomic increment and decrement per call (tens of nanoseconds,
-//! contended only by a refine).
+//! contended only by a refine). Shared acquisitions are recursive, so a thread holding a
+//! distribution can go on recording and querying while a refine waits; the refine runs once
+//! the threads stop (between passes), and cannot deadlock against them.
 //!
 //! This crate is the only place in sdguide with `unsafe` code: reading and writing through the
 //! pointers C passes in. Each use states what it relies on.
@@ -346,7 +348,7 @@ pub unsafe extern "C" fn sdg_field_record(
     guard(|| {
         // SAFETY: the caller's contract.
         let (f, s) = unsafe { (arg(field, "field")?, arg(sample, "sample")?) };
-        Ok(record(&f.inner.read(), s))
+        Ok(record(&f.inner.read_recursive(), s))
     })
 }
 
@@ -380,7 +382,7 @@ pub unsafe extern "C" fn sdg_field_record_batch(
         }
         // SAFETY: non-null and pointing to `count` initialized samples (caller's contract).
         let batch = unsafe { std::slice::from_raw_parts(samples, count) };
-        let field = f.inner.read();
+        let field = f.inner.read_recursive();
         let mut status = sdg_status::Ok;
         for s in batch {
             if record(&field, s) != sdg_status::Ok {
@@ -409,7 +411,7 @@ pub unsafe extern "C" fn sdg_field_sample(
         // SAFETY: the caller's contract.
         let f = unsafe { arg(field, "field") }?;
         let x = finite(position.into(), "position")?;
-        let (d, p) = sample(&f.inner.read(), x, u0, u1)?;
+        let (d, p) = sample(&f.inner.read_recursive(), x, u0, u1)?;
         // SAFETY: the caller's contract.
         unsafe { write_sample(direction, pdf, d, p) }
     })
@@ -460,7 +462,7 @@ pub unsafe extern "C" fn sdg_field_pdf(
         let f = unsafe { arg(field, "field") }?;
         let x = finite(position.into(), "position")?;
         let d = finite(direction.into(), "direction")?;
-        let p = f.inner.read().distribution(x).pdf(d);
+        let p = f.inner.read_recursive().distribution(x).pdf(d);
         // SAFETY: the caller's contract.
         unsafe { put(pdf, "pdf", p) }?;
         Ok(sdg_status::Ok)
@@ -578,7 +580,7 @@ pub unsafe extern "C" fn sdg_field_stats(
     guard(|| {
         // SAFETY: the caller's contract.
         let f = unsafe { arg(field, "field") }?;
-        let s = f.inner.read().stats();
+        let s = f.inner.read_recursive().stats();
         let r = s.rejected;
         let stats = sdg_stats {
             iteration: s.iteration,
@@ -641,7 +643,10 @@ pub unsafe extern "C" fn sdg_field_save(
     guard(|| {
         // SAFETY: the caller's contract.
         let (f, path) = unsafe { (arg(field, "field")?, path_arg(path)?) };
-        f.inner.read().save_to_path(path).map_err(cache_failure)?;
+        f.inner
+            .read_recursive()
+            .save_to_path(path)
+            .map_err(cache_failure)?;
         Ok(sdg_status::Ok)
     })
 }
@@ -685,7 +690,7 @@ pub unsafe extern "C" fn sdg_field_save_to_buffer(
         if data.is_null() || len.is_null() {
             return fail(sdg_status::NullPointer, "`data` or `len` is null");
         }
-        let bytes = f.inner.read().to_bytes().into_boxed_slice();
+        let bytes = f.inner.read_recursive().to_bytes().into_boxed_slice();
         let n = bytes.len();
         // SAFETY: both non-null, valid for writes (caller's contract). The box is given to C and
         // comes back, with its length, in `sdg_buffer_free`.
@@ -755,9 +760,9 @@ pub unsafe extern "C" fn sdg_field_merge(
         // Lock in address order, so two merges in opposite directions cannot deadlock.
         let (mut ours, theirs) = if Arc::as_ptr(&f.inner) < Arc::as_ptr(&o.inner) {
             let w = f.inner.write();
-            (w, o.inner.read())
+            (w, o.inner.read_recursive())
         } else {
-            let r = o.inner.read();
+            let r = o.inner.read_recursive();
             (f.inner.write(), r)
         };
         ours.merge(&theirs)

@@ -282,3 +282,62 @@ fn threads_record_and_query_while_another_refines() {
         sdg_field_destroy(f as *mut sdg_field);
     }
 }
+
+#[test]
+fn a_thread_holding_a_distribution_keeps_working_while_a_refine_waits() {
+    let f = field() as usize;
+    let mut dist = null_mut();
+    // SAFETY: valid pointers.
+    assert_eq!(
+        unsafe { sdg_field_distribution(f as *const sdg_field, v(0.5, 0.5, 0.5), &mut dist) },
+        sdg_status::Ok
+    );
+    std::thread::scope(|s| {
+        // SAFETY: valid handle; refine waits for the distribution.
+        let refine = s.spawn(move || unsafe { sdg_field_refine(f as *mut sdg_field) });
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        // With the refine waiting, this thread still records and queries (no deadlock)...
+        let (mut d, mut p) = (sdg_vec3::default(), 0.0f32);
+        // SAFETY: valid pointers.
+        unsafe {
+            let sample = sdg_sample {
+                position: v(0.5, 0.5, 0.5),
+                direction: v(0.0, 0.0, 1.0),
+                value: 1.0,
+                pdf: 0.1,
+            };
+            assert_eq!(
+                sdg_field_record(f as *const sdg_field, &sample),
+                sdg_status::Ok
+            );
+            assert_eq!(
+                sdg_field_sample(
+                    f as *const sdg_field,
+                    v(0.5, 0.5, 0.5),
+                    0.3,
+                    0.3,
+                    &mut d,
+                    &mut p
+                ),
+                sdg_status::Ok
+            );
+            assert_eq!(
+                sdg_distribution_sample(dist, 0.3, 0.3, &mut d, &mut p),
+                sdg_status::Ok
+            );
+            // ...and once it lets go of the distribution, the refine goes through.
+            sdg_distribution_destroy(dist);
+        }
+        assert_eq!(refine.join().unwrap(), sdg_status::Ok);
+    });
+    let mut stats = sdg_stats::default();
+    // SAFETY: valid pointers; destroyed once.
+    unsafe {
+        assert_eq!(
+            sdg_field_stats(f as *const sdg_field, &mut stats),
+            sdg_status::Ok
+        );
+        assert_eq!((stats.iteration, stats.samples_recorded_total), (1, 1));
+        sdg_field_destroy(f as *mut sdg_field);
+    }
+}
