@@ -49,6 +49,7 @@
 //! - `field`: [`GuidingField`], which ties them together.
 //! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
 //! - `merge`: adding the statistics of fields trained in parallel.
+//! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
 //! - [`synthetic`]: analytic light fields and a training workload for tests and benchmarks.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
@@ -61,6 +62,7 @@ mod cache;
 mod config;
 mod field;
 mod merge;
+pub mod mixture;
 mod moments;
 mod quadtree;
 mod rule;

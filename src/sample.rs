@@ -71,3 +71,17 @@ pub enum RejectReason {
     /// The pdf was zero, negative, NaN or infinite.
     BadPdf,
 }
+
+impl std::fmt::Display for RejectReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            RejectReason::NonFinitePosition => "the position is not finite",
+            RejectReason::OutOfBounds => "the position lies outside the field's bounds",
+            RejectReason::BadDirection => "the direction is zero or not finite",
+            RejectReason::BadValue => "the value is negative or not finite",
+            RejectReason::BadPdf => "the pdf is not positive and finite",
+        })
+    }
+}
+
+impl std::error::Error for RejectReason {}
