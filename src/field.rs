@@ -17,10 +17,6 @@ use crate::{
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-/// Positions this far outside the bounding cube (relative to its side) are still recorded, into
-/// the nearest cell: hit points offset along a normal, or rounded, land just outside the bounds.
-const POSITION_TOLERANCE: f32 = 1e-3;
-
 /// A learned, continuously refined field of directional distributions over a scene.
 ///
 /// ```
@@ -120,10 +116,8 @@ impl GuidingField {
     #[inline]
     fn insert(&self, sample: &Sample) -> Result<(), RejectReason> {
         let square = sample.check()?;
-        let cube = self.spatial.cube();
-        let tolerance = Vec3::splat(POSITION_TOLERANCE * cube.extent().x);
         let p = sample.position;
-        if !(p.cmpge(cube.min - tolerance) & p.cmple(cube.max + tolerance)).all() {
+        if !self.spatial.accepts(p) {
             return Err(RejectReason::OutOfBounds);
         }
         let tree = &self.trees[self.spatial.leaf_at(p)];

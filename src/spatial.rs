@@ -18,6 +18,10 @@ pub(crate) const LEAF_BIT: u32 = 1 << 31;
 /// Bits per axis of the fixed-point positions the descent uses.
 const FIXED_BITS: u32 = 24;
 
+/// Positions this far outside the bounding cube (relative to its side) are still recorded, into
+/// the nearest cell: hit points offset along a normal, or rounded, land just outside the bounds.
+const POSITION_TOLERANCE: f32 = 1e-3;
+
 /// Levels per axis resolved by the lookup grid (16³ cells, 16 KiB).
 const GRID_BITS: u32 = 4;
 
@@ -38,6 +42,8 @@ pub(crate) struct SpatialLeaf {
 #[derive(Clone, Debug)]
 pub(crate) struct SpatialTree {
     cube: Aabb,
+    /// The cube grown by `POSITION_TOLERANCE` of its side: where recorded positions are accepted.
+    accepted: Aabb,
     /// `2^FIXED_BITS / side`: maps cube coordinates to fixed point.
     scale: f32,
     nodes: Vec<u32>,
@@ -54,8 +60,10 @@ impl SpatialTree {
 
     /// A tree over `cube` with the given (already validated) node entries.
     pub(crate) fn from_nodes(cube: Aabb, nodes: Vec<u32>) -> Self {
+        let margin = Vec3::splat(POSITION_TOLERANCE * cube.extent().x);
         let mut tree = Self {
             cube,
+            accepted: Aabb::new(cube.min - margin, cube.max + margin),
             scale: (1u32 << FIXED_BITS) as f32 / cube.extent().x,
             nodes,
             grid: vec![0; 1 << (3 * GRID_BITS)].into_boxed_slice(),
@@ -72,6 +80,13 @@ impl SpatialTree {
     /// The cube the tree partitions.
     pub(crate) fn cube(&self) -> Aabb {
         self.cube
+    }
+
+    /// Whether a recorded position is close enough to the cube to be recorded (into the
+    /// nearest cell): within `POSITION_TOLERANCE` of its side. NaN is not.
+    #[inline]
+    pub(crate) fn accepts(&self, p: Vec3) -> bool {
+        self.accepted.contains(p)
     }
 
     /// The directional tree of the leaf containing `p`. Points outside the cube go to the

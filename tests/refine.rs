@@ -206,7 +206,8 @@ fn spatial_split_follows_the_sample_count_rule() {
     }
     field.refine();
     assert_eq!(field.stats().spatial_leaves, before + 1);
-    // Children start from the parent's distribution: every leaf answers the same pdf at +z.
+    // Split children start from copies of their parent's distribution: every leaf answers a
+    // valid (positive, finite) pdf.
     let pdfs: Vec<f32> = field
         .cells()
         .map(|c| c.distribution().pdf(Vec3::Z))
