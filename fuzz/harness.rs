@@ -86,7 +86,7 @@ pub fn field_ops(data: &[u8]) {
 /// A field from fuzz bytes: every configuration field and the bounds are arbitrary (the memory
 /// budget is at most 16 MiB so that inputs stay cheap); invalid ones are refused by `new`.
 fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
-    let config = GuidingConfig {
+    let mut config = GuidingConfig {
         rule: if b.u8()? & 1 == 0 {
             LeafRule::L1
         } else {
@@ -99,8 +99,10 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
         max_directional_nodes: u32::from(b.u16()?),
         max_spatial_nodes: u32::from(b.u16()?),
         max_memory_bytes: u64::from(b.u8()?) << 16,
+        ..GuidingConfig::default()
     };
     let bounds = Aabb::new(b.vec3()?, b.vec3()?);
+    config.prior_samples = b.f32()?;
     GuidingField::new(bounds, config).ok()
 }
 

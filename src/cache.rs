@@ -14,9 +14,16 @@
 
 use crate::moments::AtomicMoments;
 use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
+use crate::selection::{
+    GuideSelection, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
+    SelectionSums,
+};
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::stats::RejectCounters;
-use crate::{Aabb, GuidingConfig, GuidingField, LeafRule, Moments, Rejections};
+use crate::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Rejections,
+    SpatialFilter,
+};
 use glam::Vec3;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -29,7 +36,7 @@ pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
 pub const FORMAT_MAJOR: u16 = 1;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section).
-pub const FORMAT_MINOR: u16 = 0;
+pub const FORMAT_MINOR: u16 = 1;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -37,10 +44,16 @@ const CHECKSUM_LEN: usize = 4;
 const SECTION_META: u32 = 1;
 const SECTION_SPATIAL: u32 = 2;
 const SECTION_DIRECTIONAL: u32 = 3;
+/// 1.1: each spatial leaf's guide-vs-BSDF selection (optional: a reader without it starts at ½).
+const SECTION_SELECTION: u32 = 4;
+const SELECTION_LEN: usize = 32;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
-/// Length of the `META` section in format 1.0.
-const META_LEN: usize = 176;
+/// Length of the `META` section in format 1.0 (readers need at least this much).
+const META_LEN_1_0: usize = 176;
+/// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
+/// filters).
+const META_LEN: usize = 184;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -155,12 +168,21 @@ impl GuidingField {
     /// The cache as bytes (what [`save`](Self::save) writes).
     pub fn to_bytes(&self) -> Vec<u8> {
         let sections = [
-            (SECTION_META, encode_meta(self)),
-            (SECTION_SPATIAL, encode_spatial(&self.spatial)),
-            (SECTION_DIRECTIONAL, encode_directional(&self.trees)),
+            (SECTION_META, FLAG_REQUIRED, encode_meta(self)),
+            (
+                SECTION_SPATIAL,
+                FLAG_REQUIRED,
+                encode_spatial(&self.spatial),
+            ),
+            (
+                SECTION_DIRECTIONAL,
+                FLAG_REQUIRED,
+                encode_directional(&self.trees),
+            ),
+            (SECTION_SELECTION, 0, encode_selection(&self.trees)),
         ];
         let table_end = HEADER_LEN + ENTRY_LEN * sections.len();
-        let body: usize = sections.iter().map(|(_, s)| s.len()).sum();
+        let body: usize = sections.iter().map(|(_, _, s)| s.len()).sum();
         let total = table_end + body + CHECKSUM_LEN;
         let mut out = Out(Vec::with_capacity(total));
         out.0.extend_from_slice(&MAGIC);
@@ -171,14 +193,14 @@ impl GuidingField {
         out.u32(0); // reserved
         out.u64(total as u64);
         let mut offset = table_end;
-        for (kind, s) in &sections {
+        for (kind, flags, s) in &sections {
             out.u32(*kind);
-            out.u32(FLAG_REQUIRED);
+            out.u32(*flags);
             out.u64(offset as u64);
             out.u64(s.len() as u64);
             offset += s.len();
         }
-        for (_, s) in &sections {
+        for (_, _, s) in &sections {
             out.0.extend_from_slice(s);
         }
         let crc = crc32fast::hash(&out.0);
@@ -200,6 +222,9 @@ impl GuidingField {
         let mut field = decode_meta(sections.meta)?;
         field.spatial = decode_spatial(sections.spatial, &field)?;
         field.trees = decode_directional(sections.directional, &field)?;
+        if let Some(bytes) = sections.selection {
+            decode_selection(bytes, &mut field.trees)?;
+        }
         Ok(field)
     }
 
@@ -348,6 +373,7 @@ struct Sections<'a> {
     meta: &'a [u8],
     spatial: &'a [u8],
     directional: &'a [u8],
+    selection: Option<&'a [u8]>,
 }
 
 /// Checks magic, version, length and checksum, and finds the sections.
@@ -412,7 +438,7 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         bytes: &bytes[HEADER_LEN..table_end],
         section: "sections",
     };
-    let (mut meta, mut spatial, mut directional) = (None, None, None);
+    let (mut meta, mut spatial, mut directional, mut selection) = (None, None, None, None);
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -431,6 +457,7 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_META => &mut meta,
             SECTION_SPATIAL => &mut spatial,
             SECTION_DIRECTIONAL => &mut directional,
+            SECTION_SELECTION => &mut selection,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -451,6 +478,7 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         meta: meta.ok_or_else(|| missing("meta"))?,
         spatial: spatial.ok_or_else(|| missing("spatial"))?,
         directional: directional.ok_or_else(|| missing("directional"))?,
+        selection,
     })
 }
 
@@ -482,6 +510,18 @@ fn encode_meta(field: &GuidingField) -> Vec<u8> {
             out.u64(c);
         }
     }
+    debug_assert_eq!(out.0.len(), META_LEN_1_0);
+    out.f32(c.prior_samples);
+    out.u8(match c.spatial_filter {
+        SpatialFilter::Nearest => 0,
+        SpatialFilter::Stochastic => 1,
+        SpatialFilter::Box => 2,
+    });
+    out.u8(match c.directional_filter {
+        DirectionalFilter::Nearest => 0,
+        DirectionalFilter::Box => 1,
+    });
+    out.0.extend_from_slice(&[0; 2]);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -529,6 +569,33 @@ fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     }
     field.rejected_before = counts[0];
     field.rejected = RejectCounters::from_rejections(counts[1]);
+    // 1.1: shrinkage and filters. A 1.0 file trained without shrinkage (and unfiltered), and
+    // keeps training so.
+    if r.bytes.is_empty() {
+        field.config.prior_samples = 0.0;
+    } else {
+        field.config.prior_samples = r.f32()?;
+        field.config.spatial_filter = match r.u8()? {
+            0 => SpatialFilter::Nearest,
+            1 => SpatialFilter::Stochastic,
+            2 => SpatialFilter::Box,
+            other => return Err(corrupt("meta", format!("unknown spatial filter {other}"))),
+        };
+        field.config.directional_filter = match r.u8()? {
+            0 => DirectionalFilter::Nearest,
+            1 => DirectionalFilter::Box,
+            other => {
+                return Err(corrupt(
+                    "meta",
+                    format!("unknown directional filter {other}"),
+                ));
+            }
+        };
+    }
+    field
+        .config
+        .validate()
+        .map_err(|e| corrupt("meta", e.to_string()))?;
     Ok(field)
 }
 
@@ -604,6 +671,58 @@ fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
         }
     }
     out.0
+}
+
+fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + SELECTION_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let s = t.selection.sums();
+        out.f32(t.selection.probability);
+        out.u32(0);
+        out.f64(s.gradient);
+        out.f64(s.curvature);
+        out.u64(s.count);
+    }
+    out.0
+}
+
+/// Reads the optional selection section into `trees` (already decoded).
+fn decode_selection(bytes: &[u8], trees: &mut [DirectionalTree]) -> Result<(), CacheError> {
+    let mut r = In {
+        bytes,
+        section: "selection",
+    };
+    let n = r.count(SELECTION_LEN, "selections")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            "selection",
+            format!("{n} selections for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let probability = r.f32()?;
+        r.u32()?;
+        let sums = SelectionSums {
+            gradient: r.f64()?,
+            curvature: r.f64()?,
+            count: r.u64()?,
+        };
+        let in_range = (MIN_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY).contains(&probability)
+            || probability == INITIAL_GUIDE_PROBABILITY;
+        let sums_ok = sums.gradient.is_finite()
+            && sums.curvature.is_finite()
+            && sums.curvature >= 0.0
+            && (sums.count > 0 || (sums.gradient == 0.0 && sums.curvature == 0.0));
+        if !(in_range && sums_ok) {
+            return Err(corrupt(
+                "selection",
+                format!("tree {i}: probability {probability}, sums {sums:?}"),
+            ));
+        }
+        t.selection = GuideSelection::from_parts(probability, sums);
+    }
+    Ok(())
 }
 
 fn decode_directional(
@@ -706,7 +825,8 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
         let sums_ok = [mm.sum, mm.sum_sq]
             .iter()
             .all(|s| s.is_finite() && *s >= 0.0);
-        if !sums_ok || (mm.count == 0 && (mm.sum != 0.0 || mm.sum_sq != 0.0)) {
+        // A zero count may carry sums: a box filter spreads shares into leaves it does not count.
+        if !sums_ok {
             return Err(corrupt(section, format!("leaf {k}: moments {mm:?}")));
         }
         moments.push(AtomicMoments::from_moments(mm));
@@ -719,6 +839,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
             nodes: nodes.into_boxed_slice(),
             moments: moments.into_boxed_slice(),
         },
+        selection: GuideSelection::default(),
     })
 }
 

@@ -1,6 +1,6 @@
 //! The field's configuration: every knob, its default, and the checks that reject absurd values.
 
-use crate::LeafRule;
+use crate::{DirectionalFilter, LeafRule, SpatialFilter};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -48,6 +48,17 @@ pub struct GuidingConfig {
     /// (`max_memory_bytes / (trees · 120 bytes)` interior nodes, 120 bytes bounding what one
     /// node costs); refusals are counted. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
+    /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
+    /// (default 4, chosen with the quality harness: see `docs/quality.md`). At refine, a cell's sums become `w · own + (1 − w) · parent's / 4` with
+    /// `w = n/(n + n0)`, top-down, so a sparsely sampled leaf borrows from its siblings
+    /// instead of trusting a few heavy-tailed values (a leaf whose mass is underestimated costs
+    /// variance without bound). 0 turns shrinkage off. Must be finite and ≥ 0.
+    pub prior_samples: f32,
+    /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`]; see
+    /// [`filter`](crate::filter)).
+    pub spatial_filter: SpatialFilter,
+    /// How a sample is spread over directional leaves (default [`DirectionalFilter::Nearest`]).
+    pub directional_filter: DirectionalFilter,
 }
 
 impl Default for GuidingConfig {
@@ -61,6 +72,9 @@ impl Default for GuidingConfig {
             max_directional_nodes: 8192,
             max_spatial_nodes: 1 << 20,
             max_memory_bytes: 1 << 30,
+            prior_samples: 4.0,
+            spatial_filter: SpatialFilter::Nearest,
+            directional_filter: DirectionalFilter::Nearest,
         }
     }
 }
@@ -120,6 +134,12 @@ impl GuidingConfig {
             "max_memory_bytes",
             self.max_memory_bytes.to_string(),
             "at least 65536",
+        )?;
+        check(
+            self.prior_samples.is_finite() && self.prior_samples >= 0.0,
+            "prior_samples",
+            self.prior_samples.to_string(),
+            "a finite number >= 0",
         )
     }
 }

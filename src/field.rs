@@ -5,14 +5,15 @@
 //! iterations the renderer calls [`GuidingField::refine`], which takes `&mut self`, so the type
 //! system guarantees no thread is recording or sampling while the trees change.
 
+use crate::filter::hash_jitter;
 use crate::moments::weights;
 use crate::quadtree::{BYTES_PER_NODE, DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
 use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason,
-    Rejections, Sample,
+    Aabb, ConfigError, DirectionalCell, DirectionalFilter, FieldStats, GuidingConfig, Moments,
+    RejectReason, Rejections, Sample, SpatialFilter,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -120,18 +121,75 @@ impl GuidingField {
         if !self.spatial.accepts(p) {
             return Err(RejectReason::OutOfBounds);
         }
-        let tree = &self.trees[self.spatial.leaf_at(p)];
-        tree.recording
-            .record(square, weights(sample.value, sample.pdf));
+        let w = weights(sample.value, sample.pdf);
+        if let Some(m) = &sample.mixture {
+            // The selection belongs to the leaf whose distribution sampled the direction.
+            let leaf = &self.trees[self.spatial.leaf_at(p)];
+            leaf.selection
+                .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
+        }
+        match self.config.spatial_filter {
+            SpatialFilter::Nearest => self.insert_directional(self.spatial.leaf_at(p), square, w),
+            SpatialFilter::Stochastic => {
+                let cell = self.spatial.locate(p).bounds;
+                let u = sample
+                    .jitter
+                    .unwrap_or_else(|| hash_jitter(p, sample.direction))
+                    .clamp(Vec3::ZERO, Vec3::ONE);
+                let moved = self.spatial.cube().clamp(p + (u - 0.5) * cell.extent());
+                self.insert_directional(self.spatial.leaf_at(moved), square, w);
+            }
+            SpatialFilter::Box => {
+                // The sample counts in its own leaf; its weights spread over the leaf-sized box
+                // (clipped to the cube, shares renormalized to the clipped volume).
+                let home = self.spatial.leaf_at(p);
+                let half = 0.5 * self.spatial.locate(p).bounds.extent();
+                let cube = self.spatial.cube();
+                let (lo, hi) = ((p - half).max(cube.min), (p + half).min(cube.max));
+                let volume = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
+                if !(volume > 0.0) {
+                    self.insert_directional(home, square, w);
+                    return Ok(());
+                }
+                self.trees[home].recording.count_only(square);
+                self.spatial.overlapping(lo, hi, |leaf, v| {
+                    let share = v / volume;
+                    let part = (w.0 * share, w.1 * share);
+                    self.insert_directional_sums(leaf, square, part);
+                });
+            }
+        }
         Ok(())
+    }
+
+    /// Records weights `w` at `square` into spatial leaf `leaf`'s tree, as one sample, through
+    /// the directional filter.
+    #[inline]
+    fn insert_directional(&self, leaf: usize, square: Vec2, w: (f64, f64)) {
+        let tree = &self.trees[leaf].recording;
+        match self.config.directional_filter {
+            DirectionalFilter::Nearest => tree.record(square, w),
+            DirectionalFilter::Box => tree.record_box(square, w),
+        }
+    }
+
+    /// Like [`insert_directional`](Self::insert_directional), without counting a sample.
+    fn insert_directional_sums(&self, leaf: usize, square: Vec2, w: (f64, f64)) {
+        let tree = &self.trees[leaf].recording;
+        match self.config.directional_filter {
+            DirectionalFilter::Nearest => tree.record_sums(square, w),
+            DirectionalFilter::Box => tree.record_box_sums(square, w),
+        }
     }
 
     /// The directional distribution to sample at `position`. Positions outside the bounds get
     /// the nearest cell's distribution, so a renderer always receives a valid one.
     #[inline]
     pub fn distribution(&self, position: Vec3) -> DirectionalDistribution<'_> {
+        let tree = &self.trees[self.spatial.leaf_at(position)];
         DirectionalDistribution {
-            tree: &self.trees[self.spatial.leaf_at(position)].sampling,
+            tree: &tree.sampling,
+            guide_probability: tree.selection.probability,
         }
     }
 
@@ -154,6 +212,7 @@ impl GuidingField {
             subdivision_threshold: f64::from(c.subdivision_threshold),
             max_depth: c.max_directional_depth,
             max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
+            prior_samples: f64::from(c.prior_samples),
         };
         let outcomes: Vec<RefineOutcome> = self
             .trees
@@ -276,6 +335,7 @@ impl<'a> SpatialCell<'a> {
     pub fn distribution(&self) -> DirectionalDistribution<'a> {
         DirectionalDistribution {
             tree: &self.tree.sampling,
+            guide_probability: self.tree.selection.probability,
         }
     }
 
@@ -291,6 +351,7 @@ impl<'a> SpatialCell<'a> {
 #[derive(Clone, Copy, Debug)]
 pub struct DirectionalDistribution<'a> {
     tree: &'a SamplingTree,
+    guide_probability: f32,
 }
 
 impl DirectionalDistribution<'_> {
@@ -318,6 +379,16 @@ impl DirectionalDistribution<'_> {
             Some(s) => self.tree.pdf(s) * INV_SPHERE_AREA,
             None => 0.0,
         }
+    }
+
+    /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
+    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, in
+    /// `[`[`MIN_GUIDE_PROBABILITY`](crate::selection::MIN_GUIDE_PROBABILITY)`,
+    /// `[`MAX_GUIDE_PROBABILITY`](crate::selection::MAX_GUIDE_PROBABILITY)`]`; ½ until the cell
+    /// has learned it from samples recorded with [`Sample::with_mixture`].
+    #[inline]
+    pub fn guide_probability(&self) -> f32 {
+        self.guide_probability
     }
 
     /// The leaves of the distribution with their probabilities (which sum to 1).

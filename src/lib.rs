@@ -48,9 +48,13 @@
 //! - `spatial`: the binary tree over the scene's bounding cube.
 //! - `field`: [`GuidingField`], which ties them together.
 //! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
+//! - [`filter`]: spreading a recorded sample over neighbouring cells (splatting).
 //! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
+//! - [`selection`]: the per-cell probability of sampling the guide rather than the BSDF.
 //! - [`synthetic`]: analytic light fields and a training workload for tests and benchmarks.
+//! - [`quality`]: the exact relative variance of a trained field and the oracle bound on its
+//!   partition.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
 
@@ -61,12 +65,15 @@ mod bounds;
 mod cache;
 mod config;
 mod field;
+pub mod filter;
 mod merge;
 pub mod mixture;
 mod moments;
 mod quadtree;
+pub mod quality;
 mod rule;
 mod sample;
+pub mod selection;
 mod spatial;
 pub mod sphere;
 mod stats;
@@ -76,11 +83,12 @@ pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
 pub use field::{DirectionalDistribution, GuidingField, SpatialCell};
+pub use filter::{DirectionalFilter, SpatialFilter};
 pub use merge::MergeError;
 pub use moments::Moments;
 pub use quadtree::DirectionalCell;
 pub use rule::LeafRule;
-pub use sample::{RejectReason, Sample};
+pub use sample::{MixtureTerms, RejectReason, Sample};
 pub use stats::{FieldStats, Rejections};
 
 #[cfg(test)]

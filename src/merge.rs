@@ -47,7 +47,7 @@ impl std::error::Error for MergeError {}
 
 impl GuidingField {
     /// Adds the statistics `other` recorded in the current iteration — every cell's sums and
-    /// counts, and its rejection counts — to this field's. Both fields must have started the
+    /// counts, the guide-selection sums, and the rejection counts — to this field's. Both fields must have started the
     /// iteration from the same state (typically: the same cache, loaded on two workers).
     ///
     /// ```
@@ -85,6 +85,9 @@ impl GuidingField {
             if a.recording.nodes != b.recording.nodes {
                 return differs(format!("the recording topologies of tree {i} differ"));
             }
+            if a.selection.probability != b.selection.probability {
+                return differs(format!("the guide probabilities of tree {i} differ"));
+            }
         }
         // Checked everything first: a refused merge leaves this field untouched.
         for (a, b) in self.trees.iter_mut().zip(&other.trees) {
@@ -96,6 +99,7 @@ impl GuidingField {
             {
                 x.add_moments(y.get());
             }
+            a.selection.add_sums(b.selection.sums());
         }
         self.rejected.add(&other.rejected.get());
         Ok(())

@@ -46,11 +46,15 @@ pub(crate) fn weights(v: f32, p: f32) -> (f64, f64) {
 
 /// An `f64` that threads can add to concurrently (a compare-and-swap loop on its bits).
 #[derive(Debug, Default)]
-struct AtomicF64(AtomicU64);
+pub(crate) struct AtomicF64(AtomicU64);
 
 impl AtomicF64 {
+    pub(crate) fn new(x: f64) -> Self {
+        Self(AtomicU64::new(x.to_bits()))
+    }
+
     #[inline]
-    fn add(&self, x: f64) {
+    pub(crate) fn add(&self, x: f64) {
         // Relaxed suffices: the sums are only read after `refine` has taken `&mut self`, which
         // synchronizes with every recording thread through whatever joined them.
         let mut old = self.0.load(Ordering::Relaxed);
@@ -66,7 +70,7 @@ impl AtomicF64 {
         }
     }
 
-    fn get(&self) -> f64 {
+    pub(crate) fn get(&self) -> f64 {
         f64::from_bits(self.0.load(Ordering::Relaxed))
     }
 }
@@ -82,12 +86,24 @@ pub(crate) struct AtomicMoments {
 impl AtomicMoments {
     /// Adds one sample with precomputed weights `(v/p, v²/p)`.
     #[inline]
-    pub(crate) fn add(&self, (w1, w2): (f64, f64)) {
-        // A zero-valued sample still counts; skipping the float adds keeps dark cells cheap.
+    pub(crate) fn add(&self, weights: (f64, f64)) {
+        self.add_sums(weights);
+        self.add_count();
+    }
+
+    /// Adds weights without counting a sample (a filter's share of a sample counted elsewhere).
+    #[inline]
+    pub(crate) fn add_sums(&self, (w1, w2): (f64, f64)) {
+        // Skipping the float adds for zero values keeps dark cells cheap.
         if w1 != 0.0 {
             self.sum.add(w1);
             self.sum_sq.add(w2);
         }
+    }
+
+    /// Counts one sample.
+    #[inline]
+    pub(crate) fn add_count(&self) {
         self.count.fetch_add(1, Ordering::Relaxed);
     }
 

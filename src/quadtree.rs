@@ -16,7 +16,10 @@
 //! node's local frame. Nodes are stored so that a child always comes after its parent, which
 //! lets bottom-up passes run as one reverse sweep.
 
+use crate::MAX_DIRECTIONAL_DEPTH;
+use crate::filter::overlap;
 use crate::moments::AtomicMoments;
+use crate::selection::GuideSelection;
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
 use glam::Vec2;
@@ -286,9 +289,9 @@ impl RecordingTree {
         }
     }
 
-    /// Adds weights `(v/p, v²/p)` to the leaf that holds `s`.
+    /// The moments slot of the leaf that holds `s`, and the leaf's side.
     #[inline]
-    pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
+    fn leaf_of(&self, s: Vec2) -> (usize, f64) {
         let p = fixed(s);
         let mut node = 0usize;
         let mut depth = 1;
@@ -296,11 +299,81 @@ impl RecordingTree {
             let (ix, iy) = quadrant_bits(p, depth);
             let slot = self.nodes[node][ix | iy << 1];
             if slot & LEAF_BIT != 0 {
-                self.moments[(slot & !LEAF_BIT) as usize].add(weights);
-                return;
+                return ((slot & !LEAF_BIT) as usize, cell_area(depth).sqrt());
             }
             node = slot as usize;
             depth += 1;
+        }
+    }
+
+    /// Adds one sample of weights `(v/p, v²/p)` to the leaf that holds `s`.
+    #[inline]
+    pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
+        self.moments[self.leaf_of(s).0].add(weights);
+    }
+
+    /// Adds weights to the leaf that holds `s` without counting a sample.
+    #[inline]
+    pub(crate) fn record_sums(&self, s: Vec2, weights: (f64, f64)) {
+        self.moments[self.leaf_of(s).0].add_sums(weights);
+    }
+
+    /// Counts a sample in the leaf that holds `s` (its weights go elsewhere).
+    #[inline]
+    pub(crate) fn count_only(&self, s: Vec2) {
+        self.moments[self.leaf_of(s).0].add_count();
+    }
+
+    /// [`record_box_sums`](Self::record_box_sums), and counts the sample in the leaf that
+    /// holds `s`.
+    pub(crate) fn record_box(&self, s: Vec2, weights: (f64, f64)) {
+        self.count_only(s);
+        self.record_box_sums(s, weights);
+    }
+
+    /// Adds weights `(v/p, v²/p)` to the leaves that a square the size of the leaf holding `s`,
+    /// centred on `s`, overlaps, in proportion to the overlap (clipped at `x = 0, 1`, wrapped
+    /// around in `y`, the `φ` seam). No allocation: the depth-first walk keeps its stack in an
+    /// array (at most 3 pending cells per level plus the 4 children of the one expanded).
+    pub(crate) fn record_box_sums(&self, s: Vec2, (w1, w2): (f64, f64)) {
+        if w1 == 0.0 {
+            return;
+        }
+        // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
+        let size = self.leaf_of(s).1;
+        let (sx, sy) = (f64::from(s.x), f64::from(s.y));
+        let (x0, x1) = ((sx - 0.5 * size).max(0.0), (sx + 0.5 * size).min(1.0));
+        let (y0, y1) = (sy - 0.5 * size, sy + 0.5 * size);
+        let area = (x1 - x0) * size;
+        if !(area > 0.0) {
+            return self.record_sums(s, (w1, w2));
+        }
+        let overlap_y = |c0: f64, c1: f64| {
+            [-1.0, 0.0, 1.0]
+                .iter()
+                .map(|k| overlap(y0 + k, y1 + k, c0, c1))
+                .sum::<f64>()
+        };
+        let mut stack = [(0u32, 0.0f64, 0.0f64, 1.0f64); 4 * MAX_DIRECTIONAL_DEPTH as usize];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (node, ox, oy, size) = stack[top];
+            let half = 0.5 * size;
+            for (q, &slot) in self.nodes[node as usize].iter().enumerate() {
+                let (cx, cy) = (ox + (q & 1) as f64 * half, oy + (q >> 1) as f64 * half);
+                let f = overlap(x0, x1, cx, cx + half) * overlap_y(cy, cy + half);
+                if f <= 0.0 {
+                    continue;
+                }
+                if slot & LEAF_BIT != 0 {
+                    let share = f / area;
+                    self.moments[(slot & !LEAF_BIT) as usize].add_sums((w1 * share, w2 * share));
+                } else if top < stack.len() {
+                    stack[top] = (slot, cx, cy, half);
+                    top += 1;
+                }
+            }
         }
     }
 
@@ -335,6 +408,56 @@ impl RecordingTree {
         std::mem::size_of_val(&*self.nodes) + std::mem::size_of_val(&*self.moments)
     }
 
+    /// Each leaf's `(S1, S2)` shrunk toward its parent's: top-down, a cell's estimate is
+    /// `w · (its own pooled sums) + (1 − w) · (its parent's estimate) / 4` with
+    /// `w = n / (n + n0)`, `n` the samples that fell in the cell and `n0 = prior_samples`.
+    ///
+    /// Sums over a few samples of heavy-tailed values are mostly too small (and sometimes far
+    /// too large); a leaf whose mass is underestimated costs `m_i/α_i`, without bound. Pooling
+    /// a sparse leaf with its siblings — which estimate neighbouring parts of the same light —
+    /// bounds that, and leaves well-sampled leaves (`n ≫ n0`) as they were. `n0 = 0` turns it off.
+    pub(crate) fn shrunk_leaf_moments(&self, prior_samples: f64) -> Vec<(f64, f64)> {
+        let n = self.nodes.len();
+        // Pooled sums per node, bottom-up (children have larger indices than their parents).
+        let mut pooled = vec![(0.0f64, 0.0f64, 0u64); n];
+        let slot_moments = |slot: u32, pooled: &[(f64, f64, u64)]| {
+            if slot & LEAF_BIT != 0 {
+                let m = self.moments[(slot & !LEAF_BIT) as usize].get();
+                (m.sum, m.sum_sq, m.count)
+            } else {
+                pooled[slot as usize]
+            }
+        };
+        for i in (0..n).rev() {
+            pooled[i] = self.nodes[i].iter().fold((0.0, 0.0, 0), |a, &slot| {
+                let m = slot_moments(slot, &pooled);
+                (a.0 + m.0, a.1 + m.1, a.2.saturating_add(m.2))
+            });
+        }
+        // Shrunk estimates, top-down.
+        let mut estimate = vec![(0.0f64, 0.0f64); n];
+        let mut leaves = vec![(0.0f64, 0.0f64); self.moments.len()];
+        estimate[0] = (pooled[0].0, pooled[0].1);
+        for i in 0..n {
+            let prior = (0.25 * estimate[i].0, 0.25 * estimate[i].1);
+            for &slot in &self.nodes[i] {
+                let (s1, s2, count) = slot_moments(slot, &pooled);
+                let w = if prior_samples > 0.0 {
+                    count as f64 / (count as f64 + prior_samples)
+                } else {
+                    1.0
+                };
+                let e = (w * s1 + (1.0 - w) * prior.0, w * s2 + (1.0 - w) * prior.1);
+                if slot & LEAF_BIT != 0 {
+                    leaves[(slot & !LEAF_BIT) as usize] = e;
+                } else {
+                    estimate[slot as usize] = e;
+                }
+            }
+        }
+        leaves
+    }
+
     /// The depth of every node (the root is 0), from one forward sweep.
     fn depths(&self) -> Vec<u32> {
         let mut depth = vec![0u32; self.nodes.len()];
@@ -357,6 +480,7 @@ pub(crate) struct RefineParams {
     pub subdivision_threshold: f64,
     pub max_depth: u32,
     pub max_nodes: u32,
+    pub prior_samples: f64,
 }
 
 /// What one directional refine did.
@@ -373,6 +497,8 @@ pub(crate) struct RefineOutcome {
 pub(crate) struct DirectionalTree {
     pub(crate) sampling: SamplingTree,
     pub(crate) recording: RecordingTree,
+    /// The spatial leaf's learned guide-vs-BSDF selection probability.
+    pub(crate) selection: GuideSelection,
 }
 
 impl Default for DirectionalTree {
@@ -380,6 +506,7 @@ impl Default for DirectionalTree {
         Self {
             sampling: SamplingTree::uniform(),
             recording: RecordingTree::root(),
+            selection: GuideSelection::default(),
         }
     }
 }
@@ -452,23 +579,32 @@ struct Grown {
 
 impl DirectionalTree {
     /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
-    /// (empty) recording topology. A tree that recorded nothing keeps what it had learned.
+    /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
     pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
+        self.selection.step();
         let samples = self.recording.count();
         if samples == 0 {
+            // Nothing landed here; shares a box filter spread in from neighbouring spatial
+            // leaves are not enough to learn from (shrinkage weighs by counted samples), so
+            // they are dropped with the iteration, and the distribution stays.
+            for m in self.recording.moments.iter_mut() {
+                *m = AtomicMoments::default();
+            }
             return RefineOutcome::default();
         }
         let rec = &self.recording;
         let depth = rec.depths();
 
-        // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j.
+        // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
+        //    shrunk toward their parents' (see `shrunk_leaf_moments`).
+        let leaf_moments = rec.shrunk_leaf_moments(params.prior_samples);
         let mut leaf_mass = vec![0.0f64; rec.moments.len()];
         for (i, slots) in rec.nodes.iter().enumerate() {
             for &slot in slots {
                 if slot & LEAF_BIT != 0 {
                     let k = (slot & !LEAF_BIT) as usize;
-                    let m = rec.moments[k].get();
-                    leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), m.sum, m.sum_sq);
+                    let (s1, s2) = leaf_moments[k];
+                    leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), s1, s2);
                 }
             }
         }

@@ -26,6 +26,25 @@ pub struct Sample {
     pub value: f32,
     /// The solid-angle density with which `direction` was drawn: finite and positive.
     pub pdf: f32,
+    /// Three uniform numbers in `[0, 1)` for [`SpatialFilter::Stochastic`](crate::SpatialFilter)
+    /// (ignored by the other filters). `None`: the field derives them from a hash of the
+    /// sample, so recording is deterministic either way. Out-of-range values are clamped.
+    pub jitter: Option<Vec3>,
+    /// What the guide-vs-BSDF selection learns from, when the direction was drawn from the
+    /// one-sample mixture of BSDF sampling and guiding (see [`selection`](crate::selection)).
+    pub mixture: Option<MixtureTerms>,
+}
+
+/// A sample's terms of the one-sample mixture `q = a·p_guide + (1 − a)·p_bsdf`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MixtureTerms {
+    /// The full integrand at the direction, `L·f_s·|cos θ|` (a non-negative scalar, usually a
+    /// luminance): what the mixture estimator divides by `q`.
+    pub integrand: f32,
+    /// The BSDF sampling pdf of the direction (solid angle; 0 where the BSDF cannot sample it).
+    pub bsdf_pdf: f32,
+    /// The guide's pdf of the direction ([`DirectionalDistribution::pdf`](crate::DirectionalDistribution::pdf)).
+    pub guide_pdf: f32,
 }
 
 impl Sample {
@@ -36,7 +55,26 @@ impl Sample {
             direction,
             value,
             pdf,
+            jitter: None,
+            mixture: None,
         }
+    }
+
+    /// The sample with its mixture terms: the integrand `L·f_s·|cos θ|`, and the BSDF's and
+    /// the guide's pdfs of the direction. `pdf` stays the mixture pdf it was drawn with.
+    pub const fn with_mixture(mut self, integrand: f32, bsdf_pdf: f32, guide_pdf: f32) -> Self {
+        self.mixture = Some(MixtureTerms {
+            integrand,
+            bsdf_pdf,
+            guide_pdf,
+        });
+        self
+    }
+
+    /// The sample with the stochastic spatial filter's random numbers `u ∈ [0, 1)³`.
+    pub const fn with_jitter(mut self, u: Vec3) -> Self {
+        self.jitter = Some(u);
+        self
     }
 
     /// Checks the sample and returns its direction's point on the unit square (see
@@ -52,11 +90,21 @@ impl Sample {
         if !(self.pdf > 0.0 && self.pdf.is_finite()) {
             return Err(RejectReason::BadPdf);
         }
+        if let Some(m) = &self.mixture {
+            if !(m.integrand >= 0.0 && m.integrand.is_finite()) {
+                return Err(RejectReason::BadValue);
+            }
+            let pdf_ok = |p: f32| p >= 0.0 && p.is_finite();
+            if !(pdf_ok(m.bsdf_pdf) && pdf_ok(m.guide_pdf)) {
+                return Err(RejectReason::BadPdf);
+            }
+        }
         crate::sphere::square_of(self.direction).ok_or(RejectReason::BadDirection)
     }
 }
 
-/// Why a recorded sample was rejected. Each reason has its own counter in
+/// Why a recorded sample was rejected (the mixture terms, when given, are checked like the
+/// value and the pdf). Each reason has its own counter in
 /// [`FieldStats::rejected`](crate::FieldStats::rejected).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum RejectReason {
@@ -66,9 +114,9 @@ pub enum RejectReason {
     OutOfBounds,
     /// The direction was zero, NaN or infinite.
     BadDirection,
-    /// The value was negative, NaN or infinite.
+    /// The value (or the mixture's integrand) was negative, NaN or infinite.
     BadValue,
-    /// The pdf was zero, negative, NaN or infinite.
+    /// The pdf was zero, negative, NaN or infinite (or a mixture pdf negative or not finite).
     BadPdf,
 }
 

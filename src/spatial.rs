@@ -10,6 +10,7 @@
 //! grid cell, where the descent stands after them: a query then walks only the levels below.
 
 use crate::Aabb;
+use crate::filter::overlap;
 use glam::Vec3;
 use std::collections::BinaryHeap;
 
@@ -119,6 +120,42 @@ impl SpatialTree {
             leaf: (node & !LEAF_BIT) as usize,
             bounds,
             depth,
+        }
+    }
+
+    /// Calls `f(leaf, volume)` for every leaf that the box `[lo, hi]` overlaps, with the
+    /// overlapped volume. No allocation: the depth-first walk keeps its stack in an array.
+    pub(crate) fn overlapping(&self, lo: Vec3, hi: Vec3, mut f: impl FnMut(usize, f64)) {
+        let mut stack = [(0u32, self.cube, 0u32); MAX_SPATIAL_DEPTH as usize + 2];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (node, bounds, depth) = stack[top];
+            let volume = (0..3)
+                .map(|a| {
+                    let [a0, a1, b0, b1] = [lo[a], hi[a], bounds.min[a], bounds.max[a]];
+                    overlap(a0.into(), a1.into(), b0.into(), b1.into())
+                })
+                .product::<f64>();
+            if volume <= 0.0 {
+                continue;
+            }
+            let n = self.nodes[node as usize];
+            if n & LEAF_BIT != 0 {
+                f((n & !LEAF_BIT) as usize, volume);
+                continue;
+            }
+            let axis = (depth % 3) as usize;
+            let mid = bounds.center()[axis];
+            let (mut low, mut high) = (bounds, bounds);
+            low.max[axis] = mid;
+            high.min[axis] = mid;
+            // Depth-first: at most one pending sibling per level.
+            if top + 2 <= stack.len() {
+                stack[top] = (n, low, depth + 1);
+                stack[top + 1] = (n + 1, high, depth + 1);
+                top += 2;
+            }
         }
     }
 

@@ -59,16 +59,20 @@ fn mix(mut z: u64) -> u64 {
 
 /// A von Mises–Fisher lobe of light arriving from the direction of `target`.
 ///
-/// At a point `x` its mean direction is `normalize(target − x)`; its value in direction `ω` is
-/// `power · κ / (2π(1 − e^{−2κ})) · e^{κ(μ·ω − 1)}`, which integrates to `power` over the sphere.
+/// At a point `x` its mean direction is `μ = normalize(target − x)` and its strength is
+/// `P(x) = power / (1 + falloff·|target − x|²)`; its value in direction `ω` is
+/// `P(x) · κ / (2π(1 − e^{−2κ})) · e^{κ(μ·ω − 1)}`, which integrates to `P(x)` over the sphere.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VmfLobe {
     /// The point the light comes from.
     pub target: Vec3,
     /// Concentration: larger is sharper (κ = 800 is a lobe a few degrees wide).
     pub kappa: f32,
-    /// The lobe's integral over the sphere.
+    /// The lobe's integral over the sphere where it does not fall off (`falloff = 0`, or at
+    /// `target`).
     pub power: f32,
+    /// How fast the strength falls off with squared distance from `target` (0: constant).
+    pub falloff: f32,
 }
 
 impl VmfLobe {
@@ -77,9 +81,24 @@ impl VmfLobe {
         (self.target - x).try_normalize().unwrap_or(Vec3::Z)
     }
 
+    /// The lobe's strength at `x`: its integral over the sphere there.
+    pub fn power_at(&self, x: Vec3) -> f32 {
+        self.power / (1.0 + self.falloff * (self.target - x).length_squared())
+    }
+
     /// The lobe's value at `x` in direction `d` (a unit vector).
     pub fn eval(&self, x: Vec3, d: Vec3) -> f32 {
-        self.power * self.density(self.mean(x).dot(d))
+        self.power_at(x) * self.density(self.mean(x).dot(d))
+    }
+
+    /// `∫ eval(x, ω)² dω`: the normalized density squared integrates to
+    /// `κ / (4π) · (1 − e^{−4κ}) / (1 − e^{−2κ})²`.
+    pub fn integral_of_square(&self, x: Vec3) -> f64 {
+        let k = f64::from(self.kappa);
+        let p = f64::from(self.power_at(x));
+        let e2 = -(-2.0 * k).exp_m1();
+        let e4 = -(-4.0 * k).exp_m1();
+        p * p * k / (4.0 * std::f64::consts::PI) * e4 / (e2 * e2)
     }
 
     /// The normalized vMF density for `cos = μ·ω`, written to stay finite for any κ.
@@ -119,11 +138,13 @@ impl LightField {
                     target: Vec3::new(0.75, 0.95, 0.6),
                     kappa: 800.0,
                     power: 10.0,
+                    falloff: 0.0,
                 },
                 VmfLobe {
                     target: Vec3::new(-0.5, 0.6, 0.5),
                     kappa: 60.0,
                     power: 4.0,
+                    falloff: 0.0,
                 },
             ],
             ambient: 0.05,
@@ -135,10 +156,14 @@ impl LightField {
         self.ambient + self.lobes.iter().map(|l| l.eval(x, d)).sum::<f32>()
     }
 
-    /// `∫ radiance(x, ω) dω` over the sphere: the same at every `x`.
-    pub fn integral(&self) -> f64 {
+    /// `∫ radiance(x, ω) dω` over the sphere.
+    pub fn integral(&self, x: Vec3) -> f64 {
         f64::from(self.ambient) * f64::from(SPHERE_AREA)
-            + self.lobes.iter().map(|l| f64::from(l.power)).sum::<f64>()
+            + self
+                .lobes
+                .iter()
+                .map(|l| f64::from(l.power_at(x)))
+                .sum::<f64>()
     }
 }
 
@@ -225,6 +250,21 @@ impl Workload {
         self.light.ambient + lobes * xi
     }
 
+    /// `E[v]` and `E[v²]` of the value [`value`](Self::value) returns at `x` from `d`: with
+    /// lobe radiance `l` and ambient `a`, `a + l` and `a² + 2al + E[ξ²]·l²`. Their integrals
+    /// over a cell are what the l1 and l2 rules estimate.
+    pub fn value_moments(&self, x: Vec3, d: Vec3) -> (f64, f64) {
+        let a = f64::from(self.light.ambient);
+        let l: f64 = self
+            .light
+            .lobes
+            .iter()
+            .map(|l| f64::from(l.eval(x, d)))
+            .sum();
+        let noise = f64::from(self.lobe_noise.max(1.0));
+        (a + l, a * a + 2.0 * a * l + noise * l * l)
+    }
+
     /// Estimates `∫ L(x, ω) dω` at `x` with `n` samples from `sample` (which maps two uniform
     /// numbers to a direction and its solid-angle pdf), with the workload's noisy values, and
     /// measures the estimator's relative variance against the exact integral.
@@ -245,7 +285,7 @@ impl Workload {
         let n = n as f64;
         let mean = s1 / n;
         let var = (s2 / n - mean * mean).max(0.0) * n / (n - 1.0);
-        let truth = self.light.integral();
+        let truth = self.light.integral(x);
         Estimate {
             mean,
             relative_variance: var / (truth * truth),
@@ -284,6 +324,7 @@ mod tests {
             target: Vec3::new(0.3, 0.2, 0.9),
             kappa: 800.0,
             power: 3.0,
+            falloff: 0.0,
         };
         let n = 2000;
         let x = Vec3::new(0.1, 0.5, 0.4);
@@ -304,6 +345,7 @@ mod tests {
             target: Vec3::new(0.0, 0.0, 5.0),
             kappa: 60.0,
             power: 1.0,
+            falloff: 0.0,
         };
         let mut rng = Rng::new(3);
         let n = 100_000;

@@ -40,11 +40,19 @@ const HAND_BUILT: [(usize, f32, f32); 5] = [
 const S1: [f64; 4] = [2.0, 4.0, 1.5, 0.0];
 const S2: [f64; 4] = [2.0, 8.0, 4.5, 0.0];
 
-/// One spatial leaf that recorded the hand-built case and refined once.
+/// Samples per hand-built quadrant.
+const N: [f64; 4] = [2.0, 1.0, 1.0, 1.0];
+
+/// One spatial leaf that recorded the hand-built case and refined once, without shrinkage.
 fn hand_built(rule: LeafRule) -> GuidingField {
+    hand_built_with(rule, 0.0)
+}
+
+fn hand_built_with(rule: LeafRule, prior_samples: f32) -> GuidingField {
     let config = GuidingConfig {
         rule,
         spatial_threshold: 1e9,
+        prior_samples,
         ..GuidingConfig::default()
     };
     let mut field = GuidingField::new(unit_box(), config).unwrap();
@@ -78,6 +86,36 @@ fn leaf_masses_follow_the_closed_form() {
             assert!((f64::from(pdf) - expected / std::f64::consts::PI).abs() < 1e-6);
         }
     }
+}
+
+#[test]
+fn sparse_leaves_are_shrunk_toward_their_parent() {
+    // With n0 = 2, each quadrant's sums become w·own + (1 − w)·root/4, w = n/(n + n0), where the
+    // root's sums pool all quadrants. The dark quadrant q3 (one sample of 0) borrows mass.
+    let n0 = 2.0;
+    let field = hand_built_with(LeafRule::L2, n0 as f32);
+    let eps = f64::from(field.config().uniform_fraction);
+    let root: f64 = S2.iter().sum();
+    let shrunk: Vec<f64> = (0..4)
+        .map(|q| {
+            let w = N[q] / (N[q] + n0);
+            w * S2[q] + (1.0 - w) * 0.25 * root
+        })
+        .collect();
+    let raw: Vec<f64> = shrunk.iter().map(|s| (0.25 * s).sqrt()).collect();
+    let total: f64 = raw.iter().sum();
+    let leaves = field.distribution(Vec3::splat(0.5)).leaves();
+    assert_eq!(leaves.len(), 4);
+    for (cell, p) in leaves {
+        let q = usize::from(cell.origin.x > 0.0) | usize::from(cell.origin.y > 0.0) << 1;
+        let expected = (1.0 - eps) * raw[q] / total + eps * 0.25;
+        assert!(
+            (f64::from(p) - expected).abs() < 1e-6,
+            "q{q}: {p} vs {expected}"
+        );
+    }
+    // Without shrinkage q3 would have the floor only.
+    assert!(raw[3] / total > 0.1);
 }
 
 #[test]

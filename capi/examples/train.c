@@ -73,24 +73,31 @@ typedef struct {
     long samples;
 } job;
 
-/* What a render thread does: draw half of the directions from the guide, half uniformly,
- * and record each with the pdf of the mixture it was drawn from. */
+/* What a render thread does: draw each direction from the one-sample mixture of the guide
+ * (with the learned probability a) and a "BSDF" (here the uniform sphere), and record it with
+ * the mixture pdf and the mixture terms the guide probability learns from. */
 static void *record(void *arg) {
     job *j = (job *)arg;
     uint64_t state = 0x9e3779b97f4a7c15ull * (uint64_t)(j->thread + 1) + (uint64_t)j->iteration;
+    const float bsdf_pdf = 1.0f / (4.0f * PI);
     sdg_sample batch[BATCH];
     for (long done = 0; done < j->samples; done += BATCH) {
         for (int i = 0; i < BATCH; i++) {
             sdg_vec3 x = {next(&state), next(&state), next(&state)};
-            float u0 = next(&state), u1 = next(&state), guide_pdf;
+            float u0 = next(&state), u1 = next(&state), guide_pdf = 0.0f, a = 0.5f;
             sdg_vec3 d;
-            if (next(&state) < 0.5f) {
-                CHECK(sdg_field_sample(j->field, x, u0, u1, &d, &guide_pdf) == SDG_STATUS_OK, "sample");
+            sdg_distribution *dist = NULL;
+            CHECK(sdg_field_distribution(j->field, x, &dist) == SDG_STATUS_OK, "distribution");
+            CHECK(sdg_distribution_guide_probability(dist, &a) == SDG_STATUS_OK, "probability");
+            if (next(&state) < a) {
+                CHECK(sdg_distribution_sample(dist, u0, u1, &d, &guide_pdf) == SDG_STATUS_OK, "sample");
             } else {
                 d = uniform_direction(u0, u1);
-                CHECK(sdg_field_pdf(j->field, x, d, &guide_pdf) == SDG_STATUS_OK, "pdf");
+                CHECK(sdg_distribution_pdf(dist, d, &guide_pdf) == SDG_STATUS_OK, "pdf");
             }
-            sdg_sample s = {x, d, light(d), 0.5f / (4.0f * PI) + 0.5f * guide_pdf};
+            sdg_distribution_destroy(dist);
+            float f = light(d); /* the integrand: light times a constant BSDF */
+            sdg_sample s = {x, d, light(d), a * guide_pdf + (1.0f - a) * bsdf_pdf, f, bsdf_pdf, guide_pdf};
             batch[i] = s;
         }
         CHECK(sdg_field_record_batch(j->field, batch, BATCH) == SDG_STATUS_OK, "record");
@@ -174,6 +181,16 @@ int main(int argc, char **argv) {
     double uniform = 4.0 * 3.14159265358979 * light_square_integral() / (truth * truth) - 1.0;
     printf("relative variance: %.4f guided, %.2f with uniform sampling\n", relvar, uniform);
     CHECK(quick || relvar < 0.1 * uniform, "relative variance %g vs uniform %g", relvar, uniform);
+
+    /* The learned guide probability: the guide fits the light far better than the uniform
+     * "BSDF", so the mixture leans toward it (within the defensive bounds). */
+    sdg_distribution *dist = NULL;
+    float a = 0.0f;
+    CHECK(sdg_field_distribution(field, x, &dist) == SDG_STATUS_OK, "distribution");
+    CHECK(sdg_distribution_guide_probability(dist, &a) == SDG_STATUS_OK, "probability");
+    sdg_distribution_destroy(dist);
+    printf("learned guide probability at (0.4, 0.6, 0.5): %.3f\n", (double)a);
+    CHECK(a > 0.5f && a <= 0.95f, "guide probability %g", (double)a);
 
     /* Save to memory and to a file, reload both, and check the copies answer identically. */
     uint8_t *bytes = NULL;

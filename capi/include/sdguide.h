@@ -18,6 +18,21 @@
 #define SDG_RULE_L2 1
 
 /*
+ Filter: record into the cell containing the sample only.
+ */
+#define SDG_FILTER_NEAREST 0
+
+/*
+ Spatial filter: move the position by a random offset within its leaf (hash-derived).
+ */
+#define SDG_FILTER_STOCHASTIC 1
+
+/*
+ Filter: spread the sample over the cells a cell-sized box around it overlaps.
+ */
+#define SDG_FILTER_BOX 2
+
+/*
  What a call did. Negative values are errors; see `sdg_last_error()` for the message.
  */
 typedef enum {
@@ -110,6 +125,18 @@ typedef struct {
    Memory budget in bytes.
    */
   uint64_t max_memory_bytes;
+  /*
+   `n0`: samples' worth of weight a directional cell's estimate gives its parent's; >= 0.
+   */
+  float prior_samples;
+  /*
+   `SDG_FILTER_NEAREST`, `SDG_FILTER_STOCHASTIC` or `SDG_FILTER_BOX`.
+   */
+  uint32_t spatial_filter;
+  /*
+   `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
+   */
+  uint32_t directional_filter;
 } sdg_config;
 
 /*
@@ -148,9 +175,23 @@ typedef struct {
    */
   float value;
   /*
-   Solid-angle density the direction was drawn with.
+   Solid-angle density the direction was drawn with (the full mixture pdf).
    */
   float pdf;
+  /*
+   Mixture terms for learning the guide probability (see
+   `sdg_distribution_guide_probability`): the integrand `L·f_s·|cos|` at the direction, and
+   the BSDF's and the guide's pdfs of it. All three 0: no mixture terms.
+   */
+  float integrand;
+  /*
+   The BSDF sampling pdf of the direction.
+   */
+  float bsdf_pdf;
+  /*
+   The guide's pdf of the direction.
+   */
+  float guide_pdf;
 } sdg_sample;
 
 /*
@@ -318,6 +359,16 @@ sdg_status sdg_distribution_sample(const sdg_distribution *dist,
  `dist` must be null or a live distribution; `pdf` null or valid for writes.
  */
 sdg_status sdg_distribution_pdf(const sdg_distribution *dist, sdg_vec3 direction, float *pdf);
+
+/*
+ The learned probability of sampling the guide rather than the BSDF at the distribution's
+ position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: in [0.05, 0.95], 0.5 until
+ learned from samples recorded with mixture terms.
+
+ # Safety
+ `dist` must be null or a live distribution; `probability` null or valid for writes.
+ */
+sdg_status sdg_distribution_guide_probability(const sdg_distribution *dist, float *probability);
 
 /*
  Destroys a distribution, releasing its hold on the field. Null is ignored.

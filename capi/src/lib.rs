@@ -24,7 +24,9 @@
 use glam::{Vec2, Vec3};
 use parking_lot::lock_api::ArcRwLockReadGuard;
 use parking_lot::{RawRwLock, RwLock};
-use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Sample};
+use sdguide::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Sample, SpatialFilter,
+};
 use std::cell::RefCell;
 use std::ffi::{CStr, CString, c_char};
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -59,6 +61,13 @@ pub enum sdg_status {
 pub const SDG_RULE_L1: u32 = 0;
 /// Leaf rule `L2`: the variance-optimal rule (the default).
 pub const SDG_RULE_L2: u32 = 1;
+
+/// Filter: record into the cell containing the sample only.
+pub const SDG_FILTER_NEAREST: u32 = 0;
+/// Spatial filter: move the position by a random offset within its leaf (hash-derived).
+pub const SDG_FILTER_STOCHASTIC: u32 = 1;
+/// Filter: spread the sample over the cells a cell-sized box around it overlaps.
+pub const SDG_FILTER_BOX: u32 = 2;
 
 /// A 3D vector (world space).
 #[repr(C)]
@@ -109,12 +118,18 @@ pub struct sdg_config {
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes.
     pub max_memory_bytes: u64,
+    /// `n0`: samples' worth of weight a directional cell's estimate gives its parent's; >= 0.
+    pub prior_samples: f32,
+    /// `SDG_FILTER_NEAREST`, `SDG_FILTER_STOCHASTIC` or `SDG_FILTER_BOX`.
+    pub spatial_filter: u32,
+    /// `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
+    pub directional_filter: u32,
 }
 
 /// One recorded path vertex (see the Rust `Sample`): at `position`, light of `value` arrived
 /// from `direction`, which was drawn with solid-angle density `pdf` (the full mixture pdf).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct sdg_sample {
     /// Where the light arrived.
     pub position: sdg_vec3,
@@ -122,8 +137,16 @@ pub struct sdg_sample {
     pub direction: sdg_vec3,
     /// Non-negative estimate of what arrived (luminance).
     pub value: f32,
-    /// Solid-angle density the direction was drawn with.
+    /// Solid-angle density the direction was drawn with (the full mixture pdf).
     pub pdf: f32,
+    /// Mixture terms for learning the guide probability (see
+    /// `sdg_distribution_guide_probability`): the integrand `L·f_s·|cos|` at the direction, and
+    /// the BSDF's and the guide's pdfs of it. All three 0: no mixture terms.
+    pub integrand: f32,
+    /// The BSDF sampling pdf of the direction.
+    pub bsdf_pdf: f32,
+    /// The guide's pdf of the direction.
+    pub guide_pdf: f32,
 }
 
 /// A snapshot of a field's shape and bookkeeping.
@@ -267,6 +290,16 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
             max_directional_nodes: c.max_directional_nodes,
             max_spatial_nodes: c.max_spatial_nodes,
             max_memory_bytes: c.max_memory_bytes,
+            prior_samples: c.prior_samples,
+            spatial_filter: match c.spatial_filter {
+                SpatialFilter::Nearest => SDG_FILTER_NEAREST,
+                SpatialFilter::Stochastic => SDG_FILTER_STOCHASTIC,
+                SpatialFilter::Box => SDG_FILTER_BOX,
+            },
+            directional_filter: match c.directional_filter {
+                DirectionalFilter::Nearest => SDG_FILTER_NEAREST,
+                DirectionalFilter::Box => SDG_FILTER_BOX,
+            },
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", config) }?;
@@ -309,6 +342,28 @@ pub unsafe extern "C" fn sdg_field_create(
             max_directional_nodes: c.max_directional_nodes,
             max_spatial_nodes: c.max_spatial_nodes,
             max_memory_bytes: c.max_memory_bytes,
+            prior_samples: c.prior_samples,
+            spatial_filter: match c.spatial_filter {
+                SDG_FILTER_NEAREST => SpatialFilter::Nearest,
+                SDG_FILTER_STOCHASTIC => SpatialFilter::Stochastic,
+                SDG_FILTER_BOX => SpatialFilter::Box,
+                other => {
+                    return fail(
+                        sdg_status::Config,
+                        format!("unknown spatial filter {other}"),
+                    );
+                }
+            },
+            directional_filter: match c.directional_filter {
+                SDG_FILTER_NEAREST => DirectionalFilter::Nearest,
+                SDG_FILTER_BOX => DirectionalFilter::Box,
+                other => {
+                    return fail(
+                        sdg_status::Config,
+                        format!("unknown directional filter {other}"),
+                    );
+                }
+            },
         };
         if out.is_null() {
             return fail(sdg_status::NullPointer, "`out` is null");
@@ -353,7 +408,10 @@ pub unsafe extern "C" fn sdg_field_record(
 }
 
 fn record(field: &GuidingField, s: &sdg_sample) -> sdg_status {
-    let sample = Sample::new(s.position.into(), s.direction.into(), s.value, s.pdf);
+    let mut sample = Sample::new(s.position.into(), s.direction.into(), s.value, s.pdf);
+    if [s.integrand, s.bsdf_pdf, s.guide_pdf] != [0.0; 3] {
+        sample = sample.with_mixture(s.integrand, s.bsdf_pdf, s.guide_pdf);
+    }
     match field.try_record(&sample) {
         Ok(()) => sdg_status::Ok,
         Err(_) => sdg_status::SampleRejected,
@@ -536,6 +594,27 @@ pub unsafe extern "C" fn sdg_distribution_pdf(
         let p = d.field.distribution(d.position).pdf(dir);
         // SAFETY: the caller's contract.
         unsafe { put(pdf, "pdf", p) }?;
+        Ok(sdg_status::Ok)
+    })
+}
+
+/// The learned probability of sampling the guide rather than the BSDF at the distribution's
+/// position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: in [0.05, 0.95], 0.5 until
+/// learned from samples recorded with mixture terms.
+///
+/// # Safety
+/// `dist` must be null or a live distribution; `probability` null or valid for writes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_distribution_guide_probability(
+    dist: *const sdg_distribution,
+    probability: *mut f32,
+) -> sdg_status {
+    guard(|| {
+        // SAFETY: the caller's contract.
+        let d = unsafe { arg(dist, "dist") }?;
+        let a = d.field.distribution(d.position).guide_probability();
+        // SAFETY: the caller's contract.
+        unsafe { put(probability, "probability", a) }?;
         Ok(sdg_status::Ok)
     })
 }

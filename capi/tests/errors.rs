@@ -84,6 +84,10 @@ fn null_pointers_are_errors_with_messages() {
             sdg_distribution_pdf(null(), v(0.0, 0.0, 1.0), &mut p),
             sdg_status::NullPointer
         );
+        assert_eq!(
+            sdg_distribution_guide_probability(null(), &mut p),
+            sdg_status::NullPointer
+        );
         assert_eq!(sdg_field_refine(null_mut()), sdg_status::NullPointer);
         assert_eq!(sdg_field_stats(f, null_mut()), sdg_status::NullPointer);
         assert_eq!(sdg_field_save(f, null()), sdg_status::NullPointer);
@@ -120,6 +124,7 @@ fn non_finite_inputs_are_rejected_or_refused() {
             direction: v(0.0, 0.0, 1.0),
             value: 1.0,
             pdf: 1.0,
+            ..Default::default()
         };
         assert_eq!(sdg_field_record(f, &bad), sdg_status::SampleRejected);
         let bad_pdf = sdg_sample {
@@ -127,6 +132,7 @@ fn non_finite_inputs_are_rejected_or_refused() {
             direction: v(0.0, 0.0, 1.0),
             value: 1.0,
             pdf: nan,
+            ..Default::default()
         };
         let good = sdg_sample {
             pdf: 0.5,
@@ -136,11 +142,22 @@ fn non_finite_inputs_are_rejected_or_refused() {
             sdg_field_record_batch(f, [good, bad_pdf, good].as_ptr(), 3),
             sdg_status::SampleRejected
         );
+        // Mixture terms are checked like the rest: a negative BSDF pdf rejects the sample.
+        let bad_mixture = sdg_sample {
+            integrand: 1.0,
+            bsdf_pdf: -1.0,
+            guide_pdf: 0.1,
+            ..good
+        };
+        assert_eq!(
+            sdg_field_record(f, &bad_mixture),
+            sdg_status::SampleRejected
+        );
         let mut stats = sdg_stats::default();
         assert_eq!(sdg_field_stats(f, &mut stats), sdg_status::Ok);
         assert_eq!(
             (stats.rejected[0], stats.rejected[4], stats.samples_recorded),
-            (1, 1, 2)
+            (1, 2, 2)
         );
         // Queries: a non-finite position, sample or direction is an invalid argument.
         assert_eq!(
@@ -254,6 +271,7 @@ fn threads_record_and_query_while_another_refines() {
                             direction: d,
                             value: d.z.max(0.0),
                             pdf: p,
+                            ..Default::default()
                         };
                         assert_eq!(sdg_field_record(f, &sample), sdg_status::Ok);
                     }
@@ -305,6 +323,7 @@ fn a_thread_holding_a_distribution_keeps_working_while_a_refine_waits() {
                 direction: v(0.0, 0.0, 1.0),
                 value: 1.0,
                 pdf: 0.1,
+                ..Default::default()
             };
             assert_eq!(
                 sdg_field_record(f as *const sdg_field, &sample),

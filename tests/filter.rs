@@ -1,0 +1,203 @@
+//! Filters spread a sample by exact overlap shares, keep its whole weight, count it once, and
+//! stay deterministic.
+
+use glam::{Vec2, Vec3};
+use sdguide::sphere::square_to_direction;
+use sdguide::synthetic::{LightField, Rng, Workload};
+use sdguide::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample, SpatialFilter,
+};
+
+fn unit_box() -> Aabb {
+    Aabb::new(Vec3::ZERO, Vec3::ONE)
+}
+
+fn config(spatial: SpatialFilter, directional: DirectionalFilter) -> GuidingConfig {
+    GuidingConfig {
+        spatial_filter: spatial,
+        directional_filter: directional,
+        ..GuidingConfig::default()
+    }
+}
+
+/// Every recorded leaf of every spatial cell: `(cell index, leaf, moments)`.
+fn recorded(field: &GuidingField) -> Vec<(usize, sdguide::DirectionalCell, Moments)> {
+    field
+        .cells()
+        .enumerate()
+        .flat_map(|(i, c)| c.recorded().into_iter().map(move |(l, m)| (i, l, m)))
+        .collect()
+}
+
+/// A field over the unit cube whose root split once, at x = 0.5 (3 samples > c = 2; the halves,
+/// 1 and 2, do not split again), with the initial four directional quadrants in each half.
+fn split_once(spatial: SpatialFilter, directional: DirectionalFilter) -> GuidingField {
+    let mut field = GuidingField::new(
+        unit_box(),
+        GuidingConfig {
+            spatial_threshold: 2.0,
+            ..config(spatial, directional)
+        },
+    )
+    .unwrap();
+    for x in [0.2, 0.4, 0.8] {
+        field.record(&Sample::new(Vec3::new(x, 0.5, 0.5), Vec3::Z, 0.0, 1.0));
+    }
+    field.refine();
+    assert_eq!(field.stats().spatial_leaves, 2);
+    field
+}
+
+#[test]
+fn every_filter_keeps_each_samples_whole_weight_and_counts_it_once() {
+    let workload = Workload {
+        light: LightField::standard(),
+        lobe_noise: 1.0,
+        seed: 3,
+    };
+    for spatial in [
+        SpatialFilter::Nearest,
+        SpatialFilter::Stochastic,
+        SpatialFilter::Box,
+    ] {
+        for directional in [DirectionalFilter::Nearest, DirectionalFilter::Box] {
+            let mut field = GuidingField::new(
+                sdguide::synthetic::room_bounds(),
+                GuidingConfig {
+                    spatial_threshold: 200.0,
+                    ..config(spatial, directional)
+                },
+            )
+            .unwrap();
+            // Two iterations so cells of many sizes exist, then a measured one.
+            workload.train(&mut field, 2, 20_000);
+            let mut rng = Rng::new(5);
+            let samples: Vec<Sample> = (0..20_000)
+                .map(|_| workload.draw(&field, &mut rng))
+                .collect();
+            field.record_all(&samples);
+            let expected: f64 = samples
+                .iter()
+                .map(|s| f64::from(s.value) / f64::from(s.pdf))
+                .sum();
+            let leaves = recorded(&field);
+            let sum: f64 = leaves.iter().map(|(_, _, m)| m.sum).sum();
+            let count: u64 = leaves.iter().map(|(_, _, m)| m.count).sum();
+            assert_eq!(count, samples.len() as u64, "{spatial:?} {directional:?}");
+            // The same terms split into shares and summed in another order: within 1e-9.
+            assert!(
+                (sum / expected - 1.0).abs() < 1e-9,
+                "{spatial:?} {directional:?}: {sum} vs {expected}"
+            );
+        }
+    }
+}
+
+/// The recorded `S1` of each of the four initial quadrants of spatial cell `cell`, and which
+/// quadrants counted a sample.
+fn quadrants(field: &GuidingField, cell: usize) -> ([f64; 4], [u64; 4]) {
+    let (mut s, mut n) = ([0.0; 4], [0; 4]);
+    for (i, leaf, m) in recorded(field) {
+        if i == cell {
+            let q = usize::from(leaf.origin.x >= 0.5) | usize::from(leaf.origin.y >= 0.5) << 1;
+            s[q] += m.sum;
+            n[q] += m.count;
+        }
+    }
+    (s, n)
+}
+
+#[test]
+fn directional_box_shares_follow_the_overlap_and_wrap_at_the_seam() {
+    let field = GuidingField::new(
+        unit_box(),
+        config(SpatialFilter::Nearest, DirectionalFilter::Box),
+    )
+    .unwrap();
+    // The leaf holding (0.3, 0.95) is the quadrant [0, 0.5) × [0.5, 1); the half-size square
+    // around the point covers x ∈ [0.05, 0.55), y ∈ [0.7, 1.2) = [0.7, 1) ∪ [0, 0.2).
+    // Shares: x 0.9 | 0.1, y 0.4 (wrapped, low half) | 0.6 (high half).
+    let d = square_to_direction(Vec2::new(0.3, 0.95));
+    field.record(&Sample::new(Vec3::splat(0.5), d, 2.0, 0.5));
+    let (s, n) = quadrants(&field, 0);
+    let expected = [0.9 * 0.4, 0.1 * 0.4, 0.9 * 0.6, 0.1 * 0.6].map(|f| 4.0 * f);
+    for q in 0..4 {
+        assert!(
+            (s[q] - expected[q]).abs() < 1e-5,
+            "q{q}: {s:?} vs {expected:?}"
+        );
+    }
+    assert_eq!(n, [0, 0, 1, 0]);
+
+    // At the pole the square is clipped to x ∈ [0, 0.35) and the shares renormalized:
+    // y ∈ [0.15, 0.65) gives 0.7 below 0.5 and 0.3 above.
+    let field = GuidingField::new(
+        unit_box(),
+        config(SpatialFilter::Nearest, DirectionalFilter::Box),
+    )
+    .unwrap();
+    let d = square_to_direction(Vec2::new(0.1, 0.4));
+    field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
+    let (s, _) = quadrants(&field, 0);
+    let expected = [0.7, 0.0, 0.3, 0.0];
+    for q in 0..4 {
+        assert!(
+            (s[q] - expected[q]).abs() < 1e-5,
+            "q{q}: {s:?} vs {expected:?}"
+        );
+    }
+}
+
+#[test]
+fn spatial_box_shares_follow_the_overlapped_volume() {
+    let field = split_once(SpatialFilter::Box, DirectionalFilter::Nearest);
+    // The point's leaf is x ∈ [0.5, 1]; a box as large around x = 0.6 spans [0.35, 0.85]:
+    // 0.15 of its 0.5 in the left leaf, 0.35 in the right one (y and z are the whole cube).
+    field.record(&Sample::new(Vec3::new(0.6, 0.5, 0.5), Vec3::Z, 1.0, 1.0));
+    let per_cell: Vec<(f64, u64)> = field
+        .cells()
+        .map(|c| {
+            let r = c.recorded();
+            (
+                r.iter().map(|(_, m)| m.sum).sum(),
+                r.iter().map(|(_, m)| m.count).sum(),
+            )
+        })
+        .collect();
+    let left = field.cells().position(|c| c.bounds.max.x <= 0.5).unwrap();
+    let right = 1 - left;
+    assert!((per_cell[left].0 - 0.3).abs() < 1e-6, "{per_cell:?}");
+    assert!((per_cell[right].0 - 0.7).abs() < 1e-6, "{per_cell:?}");
+    assert_eq!((per_cell[left].1, per_cell[right].1), (0, 1));
+}
+
+#[test]
+fn stochastic_filter_moves_by_the_callers_jitter_or_a_deterministic_hash() {
+    let field = split_once(SpatialFilter::Stochastic, DirectionalFilter::Nearest);
+    let left = field.cells().position(|c| c.bounds.max.x <= 0.5).unwrap();
+    let counts = |f: &GuidingField| -> Vec<u64> {
+        f.cells()
+            .map(|c| c.recorded().iter().map(|(_, m)| m.count).sum())
+            .collect()
+    };
+    // x = 0.55 in the right leaf (extent 0.5 in x): jitter 0 moves it by −0.25, into the left.
+    let s = Sample::new(Vec3::new(0.55, 0.5, 0.5), Vec3::Z, 1.0, 1.0);
+    field.record(&s.with_jitter(Vec3::new(0.0, 0.5, 0.5)));
+    assert_eq!(counts(&field)[left], 1);
+    field.record(&s.with_jitter(Vec3::new(0.5, 0.5, 0.5)));
+    assert_eq!(counts(&field)[1 - left], 1);
+    // Without a jitter, the same samples land in the same cells every time.
+    let a = split_once(SpatialFilter::Stochastic, DirectionalFilter::Nearest);
+    let b = split_once(SpatialFilter::Stochastic, DirectionalFilter::Nearest);
+    let mut rng = Rng::new(9);
+    for _ in 0..1000 {
+        let x = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let s = Sample::new(x, square_to_direction(rng.next_vec2()), 1.0, 1.0);
+        a.record(&s);
+        b.record(&s);
+    }
+    assert_eq!(counts(&a), counts(&b));
+    // Jittering uniform points by their leaf's extent keeps them uniform (clamped at the
+    // cube's faces): each half holds 500 of 1000 within 5σ (σ = sqrt(1000/4) ≈ 15.8).
+    assert!(counts(&a)[left].abs_diff(500) < 79, "{:?}", counts(&a));
+}
