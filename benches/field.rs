@@ -26,6 +26,7 @@ fn workload() -> Workload {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 2024,
+        bsdf: None,
     }
 }
 

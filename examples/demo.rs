@@ -70,6 +70,7 @@ fn main() {
             light: LightField::standard(),
             lobe_noise,
             seed: 1,
+            bsdf: None,
         };
         // Held-out points: inside the room, off the surfaces the workload trains on.
         let mut rng = Rng::new(99);

@@ -1,97 +1,74 @@
-//! The quality harness's table and plot: relative variance of uniform sampling, of fields
-//! trained with the `L1` and `L2` rules, and of the oracle (the best piecewise-constant density
-//! on the learned partition), on every light field of `sdguide::quality`, against the training
-//! budget.
+//! The quality harness's tables and plot (see `sdguide::quality` and `docs/quality.md`).
+//!
+//! 1. Relative variance of uniform sampling, of fields trained with the `L1` and `L2` rules, and
+//!    of the oracle (the best piecewise-constant density on the learned partition), on every
+//!    light field of the harness; a PNG plot of relvar against the training budget.
+//! 2. The filters' effect on relvar.
+//! 3. The guide-vs-BSDF mixture: relvar with the fixed selection probability ½, with the learned
+//!    one, and with the best one (brute force).
 //!
 //! ```text
-//! cargo run --release --example quality [-- --iterations 5 --budget 250000 --plot docs/quality.png]
+//! cargo run --release --example quality [-- --iterations 5 --budget 250000 --plot out/quality.png]
 //! ```
 
 use sdguide::quality::{self, Budget, Holdout, Report, TestField};
-use sdguide::{GuidingConfig, GuidingField, LeafRule};
+use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, SpatialFilter};
+use std::time::Instant;
 
 #[path = "common/plot.rs"]
 mod plot;
 
-struct Args {
-    iterations: u32,
-    budget: u64,
-    plot: String,
-}
-
-fn args() -> Args {
-    let mut a = Args {
-        iterations: 5,
-        budget: 250_000,
-        plot: "out/quality.png".into(),
-    };
+fn args() -> (Budget, String) {
+    let (mut budget, mut plot) = (Budget::default(), "out/quality.png".to_string());
     let argv: Vec<String> = std::env::args().skip(1).collect();
     for pair in argv.chunks(2) {
         match (pair[0].as_str(), pair.get(1)) {
             ("--iterations", Some(v)) if v.parse::<u32>().is_ok() => {
-                a.iterations = v.parse().unwrap()
+                budget.iterations = v.parse().unwrap()
             }
-            ("--budget", Some(v)) if v.parse::<u64>().is_ok() => a.budget = v.parse().unwrap(),
-            ("--plot", Some(v)) => a.plot = v.clone(),
+            ("--budget", Some(v)) if v.parse::<u64>().is_ok() => budget.first = v.parse().unwrap(),
+            ("--plot", Some(v)) => plot = v.clone(),
             _ => {
                 eprintln!("usage: quality [--iterations N] [--budget N] [--plot FILE.png]");
                 std::process::exit(2);
             }
         }
     }
-    a
+    (budget, plot)
 }
 
-/// Trains a field with `rule` on `field`'s workload and reports after every iteration.
-fn train(field: &TestField, rule: LeafRule, args: &Args) -> Vec<(u64, Report)> {
-    let config = GuidingConfig {
-        rule,
-        uniform_fraction: std::env::var("SDG_E")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0.01),
-        spatial_threshold: std::env::var("SDG_C")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(12000.0),
-        ..GuidingConfig::default()
-    };
-    let budget = Budget {
-        iterations: args.iterations,
-        first: args.budget,
-    };
-    let holdout = Holdout {
-        positions: std::env::var("SDG_P")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(12),
-        ..Holdout::default()
-    };
-    quality::train(field, config, budget, holdout)
-        .expect("valid configuration")
-        .1
+/// Trains on `field` with `config` and returns the reports after every iteration and the
+/// training time.
+fn train(field: &TestField, config: GuidingConfig, budget: Budget) -> (Vec<(u64, Report)>, f64) {
+    let start = Instant::now();
+    let (_, reports) = quality::train(field, config, budget, Holdout::default())
+        .expect("the harness's configurations are valid");
+    (reports, start.elapsed().as_secs_f64())
 }
 
 fn main() {
-    let args = args();
+    let (budget, plot_path) = args();
+    let holdout = Holdout::default();
     println!(
-        "sdguide quality: {} iterations, budgets {}·2^k samples (½ uniform, ½ guided); relvar averaged over {} held-out cells × {} positions\n",
-        args.iterations,
-        args.budget,
-        Holdout::default().cells,
-        Holdout::default().positions
+        "sdguide quality: {} iterations of {}·2^k samples; relvar = Var[v/p]/μ² averaged over {} held-out cells × {} positions\n",
+        budget.iterations, budget.first, holdout.cells, holdout.positions
     );
+    println!("## Leaf rules\n");
     println!(
         "| light field | uniform | L1 | L2 | oracle (L2 partition) | L2 / L1 | L2 / oracle | spatial leaves | directional leaves |"
     );
     println!("|---|---|---|---|---|---|---|---|---|");
+    let config = |rule| GuidingConfig {
+        rule,
+        ..GuidingConfig::default()
+    };
     let mut panels = Vec::new();
     for field in TestField::all() {
-        let l1 = train(&field, LeafRule::L1, &args);
-        let l2 = train(&field, LeafRule::L2, &args);
+        let (l1, _) = train(&field, config(LeafRule::L1), budget);
+        let (l2, _) = train(&field, config(LeafRule::L2), budget);
         let (a, b) = (l1.last().unwrap().1, l2.last().unwrap().1);
         println!(
-            "| {} | {:.3} | {:.4} | {:.4} | {:.4} | {:.3} | {:.3} | {} | {:.0} |",
+            "| {} | {:.2} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {:.0} |",
             field.name,
             b.variances.uniform,
             a.variances.learned,
@@ -114,9 +91,70 @@ fn main() {
             ],
         });
     }
-    if let Some(dir) = std::path::Path::new(&args.plot).parent() {
+    if let Some(dir) = std::path::Path::new(&plot_path).parent() {
         std::fs::create_dir_all(dir).expect("can create the plot's directory");
     }
-    plot::write_png(&args.plot, &panels).expect("can write the plot");
-    println!("\nplot: {}", args.plot);
+    plot::write_png(&plot_path, &panels).expect("can write the plot");
+    println!("\nplot: {plot_path}\n");
+
+    println!("## Filters (L2)\n");
+    println!("| spatial | directional | {} | training |", field_names());
+    println!("|---|---|---|---|---|---|---|");
+    for (spatial, directional) in [
+        (SpatialFilter::Nearest, DirectionalFilter::Nearest),
+        (SpatialFilter::Nearest, DirectionalFilter::Box),
+        (SpatialFilter::Stochastic, DirectionalFilter::Box),
+        (SpatialFilter::Box, DirectionalFilter::Box),
+    ] {
+        let config = GuidingConfig {
+            spatial_filter: spatial,
+            directional_filter: directional,
+            ..GuidingConfig::default()
+        };
+        let mut cells = Vec::new();
+        let mut seconds = 0.0;
+        for field in TestField::all() {
+            let (r, t) = train(&field, config.clone(), budget);
+            cells.push(format!("{:.3}", r.last().unwrap().1.variances.learned));
+            seconds += t;
+        }
+        println!(
+            "| {spatial:?} | {directional:?} | {} | {seconds:.0} s |",
+            cells.join(" | ")
+        );
+    }
+
+    println!("\n## Guide-vs-BSDF selection (L2; relvar of f/q, f = v·BSDF)\n");
+    println!(
+        "| light field | a = ½ | learned a | best a per cell | learned / ½ | mean learned a |"
+    );
+    println!("|---|---|---|---|---|---|");
+    for field in TestField::all() {
+        let field = field.with_bsdf();
+        let (r, _) = train(&field, GuidingConfig::default(), budget);
+        let s = r
+            .last()
+            .unwrap()
+            .1
+            .selection
+            .expect("the workload has a BSDF");
+        println!(
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} |",
+            field.name,
+            s.half,
+            s.learned,
+            s.best,
+            s.learned / s.half,
+            s.probability
+        );
+    }
+}
+
+/// The fields' names as table columns.
+fn field_names() -> String {
+    TestField::all()
+        .iter()
+        .map(|f| f.name)
+        .collect::<Vec<_>>()
+        .join(" | ")
 }

@@ -38,9 +38,10 @@ pub enum SpatialFilter {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum DirectionalFilter {
     /// Only the leaf containing the direction.
-    #[default]
     Nearest,
-    /// Every leaf a leaf-sized square around the direction overlaps, by overlapped area.
+    /// Every leaf a leaf-sized square around the direction overlaps, by overlapped area (the
+    /// default).
+    #[default]
     Box,
 }
 

@@ -29,8 +29,9 @@
 //! cost. [`evaluate`] draws held-out positions the way the training does (room surfaces), groups
 //! them by spatial cell, and reports the averages of uniform, learned and oracle relvar.
 
+use crate::selection::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
 use crate::sphere::{SPHERE_AREA, square_to_direction};
-use crate::synthetic::{LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
+use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
 use crate::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -91,6 +92,7 @@ impl TestField {
                 light: light.clone(),
                 lobe_noise,
                 seed: 1,
+                bsdf: None,
             },
         };
         vec![
@@ -99,6 +101,19 @@ impl TestField {
             field("three lobes, noisy", &lobes, NOISE),
             field("sharp lobe + ambient, noisy", &sharp, NOISE),
         ]
+    }
+}
+
+impl TestField {
+    /// The same field with the harness's BSDF (a glossy lobe, κ = 8, about a direction tilted
+    /// toward the lights), so that training draws from the guide–BSDF mixture and learns the
+    /// guide probability (see [`selection_variances`]).
+    pub fn with_bsdf(mut self) -> TestField {
+        self.workload.bsdf = Some(Bsdf {
+            axis: Vec3::new(0.3, 1.0, 0.2).normalize(),
+            kappa: 8.0,
+        });
+        self
     }
 }
 
@@ -113,7 +128,8 @@ pub struct CellIntegrals {
 
 /// Quadrature step (radians) for `cell` at `x`: half the angular width `1/sqrt(κ)` of the
 /// sharpest lobe whose mean direction lies within 7 widths of the cell (beyond that a lobe is
-/// below `e^{-24}` of its peak), and a quarter radian where no lobe comes near. With two
+/// below `e^{-24}` of its peak) or of the workload's BSDF, and a quarter radian where no lobe
+/// comes near. With two
 /// Gauss–Legendre points per step and axis the rule's error is far below 0.1% (tested against
 /// the closed forms).
 fn step(workload: &Workload, x: Vec3, cell: &DirectionalCell) -> f64 {
@@ -136,7 +152,9 @@ fn step(workload: &Workload, x: Vec3, cell: &DirectionalCell) -> f64 {
             let to_mean = f64::from(center.dot(l.mean(x)).clamp(-1.0, 1.0)).acos();
             to_mean - radius < 7.0 / f64::from(l.kappa).sqrt()
         })
-        .map(|l| 0.5 / f64::from(l.kappa).sqrt())
+        .map(|l| l.kappa)
+        .chain(workload.bsdf.map(|b| b.kappa))
+        .map(|kappa| 0.5 / f64::from(kappa).sqrt())
         .fold(0.25, f64::min)
 }
 
@@ -171,42 +189,45 @@ pub fn cell_integrals(
     cells
         .iter()
         .map(|cell| {
-            let h = step(workload, x, cell);
-            let (u0, size) = (f64::from(cell.origin.x), f64::from(cell.size));
-            let theta_hi = (2.0 * u0 - 1.0).clamp(-1.0, 1.0).acos();
-            let theta_lo = (2.0 * (u0 + size) - 1.0).clamp(-1.0, 1.0).acos();
-            let sin_max = if theta_lo <= FRAC_PI_2 && FRAC_PI_2 <= theta_hi {
-                1.0
-            } else {
-                theta_lo.sin().max(theta_hi.sin())
-            };
-            let phi0 = TAU * f64::from(cell.origin.y);
-            let nt = ((theta_hi - theta_lo) / h).ceil().max(1.0) as usize;
-            let np = (TAU * size * sin_max / h).ceil().max(1.0) as usize;
-            let (dt, dp) = ((theta_hi - theta_lo) / nt as f64, TAU * size / np as f64);
             let mut sum = CellIntegrals::default();
-            for i in 0..nt {
-                for theta in gauss_nodes(theta_lo, dt, i) {
-                    let (sin_t, cos_t) = theta.sin_cos();
-                    let w = sin_t * 0.25 * dt * dp;
-                    for j in 0..np {
-                        for phi in gauss_nodes(phi0, dp, j) {
-                            let (sin_p, cos_p) = phi.sin_cos();
-                            let d = Vec3::new(
-                                (sin_t * cos_p) as f32,
-                                (sin_t * sin_p) as f32,
-                                cos_t as f32,
-                            );
-                            let (m1, m2) = workload.value_moments(x, d);
-                            sum.mean += w * m1;
-                            sum.second += w * m2;
-                        }
-                    }
-                }
-            }
+            quadrature(workload, x, cell, |d, w| {
+                let (m1, m2) = workload.value_moments(x, d);
+                sum.mean += w * m1;
+                sum.second += w * m2;
+            });
             sum
         })
         .collect()
+}
+
+/// Calls `f(direction, weight)` for the nodes of [`cell_integrals`]'s rule over `cell`, at `x`.
+fn quadrature(workload: &Workload, x: Vec3, cell: &DirectionalCell, mut f: impl FnMut(Vec3, f64)) {
+    let h = step(workload, x, cell);
+    let (u0, size) = (f64::from(cell.origin.x), f64::from(cell.size));
+    let theta_hi = (2.0 * u0 - 1.0).clamp(-1.0, 1.0).acos();
+    let theta_lo = (2.0 * (u0 + size) - 1.0).clamp(-1.0, 1.0).acos();
+    let sin_max = if theta_lo <= FRAC_PI_2 && FRAC_PI_2 <= theta_hi {
+        1.0
+    } else {
+        theta_lo.sin().max(theta_hi.sin())
+    };
+    let phi0 = TAU * f64::from(cell.origin.y);
+    let nt = ((theta_hi - theta_lo) / h).ceil().max(1.0) as usize;
+    let np = (TAU * size * sin_max / h).ceil().max(1.0) as usize;
+    let (dt, dp) = ((theta_hi - theta_lo) / nt as f64, TAU * size / np as f64);
+    for i in 0..nt {
+        for theta in gauss_nodes(theta_lo, dt, i) {
+            let (sin_t, cos_t) = theta.sin_cos();
+            let w = sin_t * 0.25 * dt * dp;
+            for j in 0..np {
+                for phi in gauss_nodes(phi0, dp, j) {
+                    let (sin_p, cos_p) = phi.sin_cos();
+                    let d = Vec3::new((sin_t * cos_p) as f32, (sin_t * sin_p) as f32, cos_t as f32);
+                    f(d, w);
+                }
+            }
+        }
+    }
 }
 
 /// Relative variances `Var[v/p]/μ²` at one position.
@@ -283,6 +304,8 @@ pub struct Report {
     pub directional_leaves: f64,
     /// Spatial leaves of the field.
     pub spatial_leaves: u64,
+    /// The guide–BSDF mixture's variances, for a workload with a [`bsdf`](Workload::bsdf).
+    pub selection: Option<SelectionVariances>,
 }
 
 /// How many held-out positions [`evaluate`] uses.
@@ -365,31 +388,18 @@ pub fn evaluate(
     workload: &Workload,
     holdout: Holdout,
 ) -> Report {
-    let mut rng = Rng::new(holdout.seed);
-    let draw = |rng: &mut Rng| room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+    let regions = held_out_regions(recorded, holdout);
     let mut sum = Variances::default();
     let mut leaves = 0.0;
-    for _ in 0..holdout.cells {
-        let region = recorded.cell_at(draw(&mut rng)).bounds;
-        let mut xs = Vec::with_capacity(holdout.positions);
-        // Rejection sampling: the region was found by a training position, so it holds surface.
-        for _ in 0..1_000_000 {
-            if xs.len() == holdout.positions {
-                break;
-            }
-            let x = draw(&mut rng);
-            if recorded.cell_at(x).bounds == region {
-                xs.push(x);
-            }
-        }
+    for xs in &regions {
         let dist = field.distribution(xs[0]);
-        let v = cell_variances(workload, &dist, &xs);
+        let v = cell_variances(workload, &dist, xs);
         sum.uniform += v.uniform;
         sum.learned += v.learned;
         sum.oracle += v.oracle;
         leaves += dist.leaves().len() as f64;
     }
-    let n = holdout.cells as f64;
+    let n = regions.len() as f64;
     Report {
         variances: Variances {
             uniform: sum.uniform / n,
@@ -398,7 +408,133 @@ pub fn evaluate(
         },
         directional_leaves: leaves / n,
         spatial_leaves: field.stats().spatial_leaves,
+        selection: selection_variances(field, recorded, workload, holdout),
     }
+}
+
+/// Held-out positions grouped by the spatial cell of `recorded` they lie in: `holdout.cells`
+/// groups (cells chosen by drawing a position as training does, so busy cells are chosen more
+/// often) of `holdout.positions` positions drawn as training does inside the cell.
+fn held_out_regions(recorded: &GuidingField, holdout: Holdout) -> Vec<Vec<Vec3>> {
+    let mut rng = Rng::new(holdout.seed);
+    let draw = |rng: &mut Rng| room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+    (0..holdout.cells)
+        .map(|_| {
+            let first = draw(&mut rng);
+            let region = recorded.cell_at(first).bounds;
+            let mut xs = vec![first];
+            // Rejection sampling: the region was found by a training position, so it holds
+            // surface.
+            for _ in 0..1_000_000 {
+                if xs.len() == holdout.positions.max(1) {
+                    break;
+                }
+                let x = draw(&mut rng);
+                if recorded.cell_at(x).bounds == region {
+                    xs.push(x);
+                }
+            }
+            xs
+        })
+        .collect()
+}
+
+/// Relative variances `Var[f/q_a]/μ_f²` of the guide–BSDF mixture estimator
+/// (`f = v · bsdf.pdf`, `q_a = a·p_guide + (1 − a)·p_bsdf`), averaged over held-out positions.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SelectionVariances {
+    /// With the fixed `a = ½`.
+    pub half: f64,
+    /// With each cell's learned [`guide_probability`](DirectionalDistribution::guide_probability).
+    pub learned: f64,
+    /// With each cell's best `a` in the learned range, found by golden-section search on the
+    /// exact variance (the brute-force reference).
+    pub best: f64,
+    /// The learned `a`, averaged over the cells.
+    pub probability: f64,
+}
+
+/// The guide–BSDF mixture's variances at held-out positions of `field` (trained on `workload`,
+/// which must have a [`bsdf`](Workload::bsdf); `recorded` as in [`evaluate`]). Exact, by the
+/// same quadrature as [`cell_integrals`], per guide leaf.
+pub fn selection_variances(
+    field: &GuidingField,
+    recorded: &GuidingField,
+    workload: &Workload,
+    holdout: Holdout,
+) -> Option<SelectionVariances> {
+    let bsdf = workload.bsdf?;
+    let regions = held_out_regions(recorded, holdout);
+    let mut sum = SelectionVariances::default();
+    for xs in &regions {
+        let dist = field.distribution(xs[0]);
+        let leaves = dist.leaves();
+        // Per position: quadrature nodes (w·E[f²], p_guide, p_bsdf) and μ_f.
+        let nodes: Vec<(Vec<[f64; 3]>, f64)> = xs
+            .par_iter()
+            .map(|&x| {
+                let (mut nodes, mut mu) = (Vec::new(), 0.0);
+                for (cell, p) in &leaves {
+                    let pg = f64::from(*p) / (f64::from(SPHERE_AREA) * cell.area());
+                    quadrature(workload, x, cell, |d, w| {
+                        let (m1, m2) = workload.value_moments(x, d);
+                        let pb = f64::from(bsdf.pdf(d));
+                        mu += w * m1 * pb;
+                        nodes.push([w * m2 * pb * pb, pg, pb]);
+                    });
+                }
+                (nodes, mu)
+            })
+            .collect();
+        let relvar = |a: f64| {
+            nodes
+                .iter()
+                .map(|(nodes, mu)| {
+                    let m: f64 = nodes
+                        .iter()
+                        .map(|[e, pg, pb]| e / (a * pg + (1.0 - a) * pb))
+                        .sum();
+                    m / (mu * mu) - 1.0
+                })
+                .sum::<f64>()
+                / nodes.len() as f64
+        };
+        let learned = f64::from(dist.guide_probability());
+        sum.half += relvar(0.5);
+        sum.learned += relvar(learned);
+        sum.best += relvar(golden_section_min(
+            f64::from(MIN_GUIDE_PROBABILITY),
+            f64::from(MAX_GUIDE_PROBABILITY),
+            &relvar,
+        ));
+        sum.probability += learned;
+    }
+    let n = regions.len() as f64;
+    Some(SelectionVariances {
+        half: sum.half / n,
+        learned: sum.learned / n,
+        best: sum.best / n,
+        probability: sum.probability / n,
+    })
+}
+
+/// The minimizer of a convex `f` on `[lo, hi]`, to 1e-6.
+pub fn golden_section_min(mut lo: f64, mut hi: f64, f: impl Fn(f64) -> f64) -> f64 {
+    let r = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut a, mut b) = (hi - r * (hi - lo), lo + r * (hi - lo));
+    let (mut fa, mut fb) = (f(a), f(b));
+    while hi - lo > 1e-6 {
+        if fa < fb {
+            (hi, b, fb) = (b, a, fa);
+            a = hi - r * (hi - lo);
+            fa = f(a);
+        } else {
+            (lo, a, fa) = (a, b, fb);
+            b = lo + r * (hi - lo);
+            fb = f(b);
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 #[cfg(test)]
@@ -437,6 +573,7 @@ mod tests {
                 },
                 lobe_noise: 1.0,
                 seed: 0,
+                bsdf: None,
             };
             for depth in [0, 3, 6] {
                 let cells = whole_sphere_in(depth);
@@ -474,6 +611,7 @@ mod tests {
             },
             lobe_noise: 1.0,
             seed: 0,
+            bsdf: None,
         };
         let cells = whole_sphere_in(3);
         let sums = cell_integrals(&workload, Vec3::ZERO, &cells);

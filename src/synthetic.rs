@@ -101,21 +101,55 @@ impl VmfLobe {
         p * p * k / (4.0 * std::f64::consts::PI) * e4 / (e2 * e2)
     }
 
-    /// The normalized vMF density for `cos = μ·ω`, written to stay finite for any κ.
+    /// The normalized vMF density for `cos = μ·ω`.
     fn density(&self, cos: f32) -> f32 {
-        let k = self.kappa;
-        k / (TAU * (1.0 - (-2.0 * k).exp())) * (k * (cos - 1.0)).exp()
+        vmf_density(self.kappa, cos)
     }
 
     /// Draws a direction from the lobe at `x` (density `eval / power`).
     pub fn sample(&self, x: Vec3, u: Vec2) -> Vec3 {
-        let k = self.kappa;
-        let cos = (1.0 + (u.x + (1.0 - u.x) * (-2.0 * k).exp()).ln() / k).clamp(-1.0, 1.0);
-        let sin = (1.0 - cos * cos).max(0.0).sqrt();
-        let (s, c) = (TAU * u.y).sin_cos();
-        let mean = self.mean(x);
-        let (t, b) = mean.any_orthonormal_pair();
-        (sin * c) * t + (sin * s) * b + cos * mean
+        vmf_sample(self.mean(x), self.kappa, u)
+    }
+}
+
+/// The von Mises–Fisher density `κ / (2π(1 − e^{−2κ})) · e^{κ(cos − 1)}` of concentration `κ`
+/// at `cos = μ·ω`, written to stay finite for any κ.
+pub fn vmf_density(kappa: f32, cos: f32) -> f32 {
+    let k = kappa;
+    k / (TAU * (1.0 - (-2.0 * k).exp())) * (k * (cos - 1.0)).exp()
+}
+
+/// Draws a direction from the vMF distribution of mean `mean` (a unit vector) and concentration
+/// `kappa`, from `u ∈ [0,1)²`.
+pub fn vmf_sample(mean: Vec3, kappa: f32, u: Vec2) -> Vec3 {
+    let k = kappa;
+    let cos = (1.0 + (u.x + (1.0 - u.x) * (-2.0 * k).exp()).ln() / k).clamp(-1.0, 1.0);
+    let sin = (1.0 - cos * cos).max(0.0).sqrt();
+    let (s, c) = (TAU * u.y).sin_cos();
+    let (t, b) = mean.any_orthonormal_pair();
+    (sin * c) * t + (sin * s) * b + cos * mean
+}
+
+/// A synthetic BSDF for mixture tests: a glossy vMF lobe about a fixed axis, perfectly importance
+/// sampled, with `f_s·|cos θ| = pdf` (albedo 1). The integrand of a vertex is then
+/// `L(ω)·pdf(ω)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bsdf {
+    /// The lobe's axis (a unit vector).
+    pub axis: Vec3,
+    /// The lobe's concentration.
+    pub kappa: f32,
+}
+
+impl Bsdf {
+    /// The sampling pdf (and `f_s·|cos θ|`) of direction `d`.
+    pub fn pdf(&self, d: Vec3) -> f32 {
+        vmf_density(self.kappa, self.axis.dot(d))
+    }
+
+    /// Draws a direction.
+    pub fn sample(&self, u: Vec2) -> Vec3 {
+        vmf_sample(self.axis, self.kappa, u)
     }
 }
 
@@ -204,6 +238,11 @@ pub struct Workload {
     pub lobe_noise: f32,
     /// Fixes every random number the workload draws.
     pub seed: u64,
+    /// `None`: directions are drawn ½ from the uniform sphere and ½ from the guide. `Some`: from
+    /// the one-sample mixture of the guide (with the cell's learned
+    /// [`guide_probability`](crate::DirectionalDistribution::guide_probability)) and this BSDF,
+    /// recorded with mixture terms whose integrand is `value · bsdf.pdf`.
+    pub bsdf: Option<Bsdf>,
 }
 
 /// Samples per parallel chunk; fixed, so results do not depend on the thread count.
@@ -226,15 +265,26 @@ impl Workload {
     pub fn draw(&self, field: &GuidingField, rng: &mut Rng) -> Sample {
         let x = room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
         let dist = field.distribution(x);
-        let guided = rng.next_f32() < 0.5;
-        let u = rng.next_vec2();
-        let d = if guided {
-            dist.sample(u).0
-        } else {
-            square_to_direction(u)
+        let a = match self.bsdf {
+            Some(_) => dist.guide_probability(),
+            None => 0.5,
         };
-        let pdf = 0.5 * INV_SPHERE_AREA + 0.5 * dist.pdf(d);
-        Sample::new(x, d, self.value(x, d, rng), pdf)
+        let guided = rng.next_f32() < a;
+        let u = rng.next_vec2();
+        let d = match (guided, &self.bsdf) {
+            (true, _) => dist.sample(u).0,
+            (false, Some(b)) => b.sample(u),
+            (false, None) => square_to_direction(u),
+        };
+        let guide_pdf = dist.pdf(d);
+        let other_pdf = self.bsdf.map_or(INV_SPHERE_AREA, |b| b.pdf(d));
+        let pdf = a * guide_pdf + (1.0 - a) * other_pdf;
+        let v = self.value(x, d, rng);
+        let sample = Sample::new(x, d, v, pdf);
+        match self.bsdf {
+            Some(_) => sample.with_mixture(v * other_pdf, other_pdf, guide_pdf),
+            None => sample,
+        }
     }
 
     /// One (possibly noisy) estimate of the light arriving at `x` from `d`; its expectation is

@@ -96,6 +96,7 @@ fn queries_with_bad_arguments_stay_valid() {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 1,
+        bsdf: None,
     }
     .train(&mut field, 2, 20_000);
     for x in [

@@ -10,6 +10,7 @@ fn workload() -> Workload {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 5,
+        bsdf: None,
     }
 }
 

@@ -1,12 +1,15 @@
 //! Recording from many threads loses nothing: per-leaf moments equal a serial recording's.
 
 use sdguide::synthetic::{LightField, Rng, Workload};
-use sdguide::{GuidingConfig, GuidingField, Moments, Sample};
+use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample};
 
 /// A field with a non-trivial topology (several spatial leaves, deep quadtrees).
-fn pretrained(workload: &Workload) -> GuidingField {
-    let mut field =
-        GuidingField::new(sdguide::synthetic::room_bounds(), GuidingConfig::default()).unwrap();
+fn pretrained(workload: &Workload, directional_filter: DirectionalFilter) -> GuidingField {
+    let config = GuidingConfig {
+        directional_filter,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(sdguide::synthetic::room_bounds(), config).unwrap();
     workload.train(&mut field, 3, 100_000);
     field
 }
@@ -24,15 +27,25 @@ fn concurrent_recording_equals_serial_recording() {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 99,
+        bsdf: None,
     };
-    let base = pretrained(&workload);
+    for filter in [DirectionalFilter::Nearest, DirectionalFilter::Box] {
+        compare_serial_and_concurrent(&pretrained(&workload, filter), &workload, filter);
+    }
+}
+
+fn compare_serial_and_concurrent(
+    base: &GuidingField,
+    workload: &Workload,
+    filter: DirectionalFilter,
+) {
     let per_thread = 1_000_000usize;
     for threads in [2usize, 4, 8] {
         let batches: Vec<Vec<Sample>> = (0..threads)
             .map(|t| {
                 let mut rng = Rng::new(1000 + t as u64);
                 (0..per_thread)
-                    .map(|_| workload.draw(&base, &mut rng))
+                    .map(|_| workload.draw(base, &mut rng))
                     .collect()
             })
             .collect();
@@ -59,15 +72,21 @@ fn concurrent_recording_equals_serial_recording() {
         for (x, y) in a.iter().zip(&b) {
             assert_eq!(x.count, y.count, "{threads} threads");
             // Summed in any order, n positive f64 terms err by at most (n−1)·2⁻⁵³ of their sum, so
-            // two orders differ by at most n·2⁻⁵² = n·ε of it.
-            let tol = x.count as f64 * f64::EPSILON;
+            // two orders differ by at most n·ε of it. Without a filter a leaf sums one term per
+            // sample it counted; a box filter adds shares of other samples too, at most all of
+            // them.
+            let terms = match filter {
+                DirectionalFilter::Nearest => x.count,
+                DirectionalFilter::Box => (threads * per_thread) as u64,
+            };
+            let tol = terms as f64 * f64::EPSILON;
             assert!(
                 (x.sum - y.sum).abs() <= tol * x.sum,
-                "{threads} threads: {x:?} vs {y:?}"
+                "{filter:?}, {threads} threads: {x:?} vs {y:?}"
             );
             assert!(
                 (x.sum_sq - y.sum_sq).abs() <= tol * x.sum_sq,
-                "{threads} threads: {x:?} vs {y:?}"
+                "{filter:?}, {threads} threads: {x:?} vs {y:?}"
             );
         }
     }

@@ -54,6 +54,7 @@ fn every_filter_keeps_each_samples_whole_weight_and_counts_it_once() {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 3,
+        bsdf: None,
     };
     for spatial in [
         SpatialFilter::Nearest,

@@ -93,6 +93,7 @@ fn learned_estimator_is_unbiased_and_beats_uniform() {
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 0,
+        bsdf: None,
     };
     for rule in [LeafRule::L1, LeafRule::L2] {
         let field = trained(rule, 20, 5, 100_000);

@@ -17,6 +17,7 @@ pub fn trained(rule: LeafRule, max_depth: u32, iterations: u32, first_budget: u6
         light: LightField::standard(),
         lobe_noise: 1.0,
         seed: 11,
+        bsdf: None,
     }
     .train(&mut field, iterations, first_budget);
     field

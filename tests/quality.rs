@@ -1,0 +1,120 @@
+//! The quality harness's claims, as tests: the learned estimator is unbiased, the exact relative
+//! variance agrees with Monte Carlo, the l2 rule beats the l1 rule on every light field (clearly
+//! on the noisy ones), no density beats the oracle, and the learned guide-vs-BSDF selection
+//! beats the fixed ½.
+//!
+//! Fixed seeds; a smaller budget than the harness's default (5 iterations from 100k samples) to
+//! keep the tests quick. The harness's own table (`cargo run --release --example quality`) uses
+//! the default budget.
+
+use sdguide::quality::{self, Budget, Holdout, Report, TestField, cell_integrals};
+use sdguide::synthetic::Rng;
+use sdguide::{GuidingConfig, GuidingField, LeafRule};
+
+const BUDGET: Budget = Budget {
+    iterations: 5,
+    first: 100_000,
+};
+
+fn trained(field: &TestField, rule: LeafRule) -> (GuidingField, Report) {
+    let config = GuidingConfig {
+        rule,
+        ..GuidingConfig::default()
+    };
+    let (guiding, reports) = quality::train(field, config, BUDGET, Holdout::default()).unwrap();
+    (guiding, reports.last().unwrap().1)
+}
+
+#[test]
+fn l2_beats_l1_on_every_field_and_clearly_on_the_noisy_ones() {
+    for field in TestField::all() {
+        let (_, l1) = trained(&field, LeafRule::L1);
+        let (_, l2) = trained(&field, LeafRule::L2);
+        let (v1, v2) = (l1.variances, l2.variances);
+        // The variances are exact (quadrature) for the trained fields; what varies is the
+        // training, which the fixed seed pins. The margins are far outside the quadrature's
+        // error (< 0.1%, tested in the library).
+        let bound = if field.workload.lobe_noise > 1.0 {
+            0.8
+        } else {
+            1.0
+        };
+        assert!(
+            v2.learned < bound * v1.learned,
+            "{}: L2 {} vs L1 {}",
+            field.name,
+            v2.learned,
+            v1.learned
+        );
+        // No piecewise-constant density on the partition beats the oracle, and learning beats
+        // uniform sampling by far.
+        for v in [v1, v2] {
+            assert!(v.oracle <= v.learned, "{}: {v:?}", field.name);
+            assert!(v.learned < 0.2 * v.uniform, "{}: {v:?}", field.name);
+        }
+    }
+}
+
+#[test]
+fn the_learned_estimator_is_unbiased_and_its_exact_variance_matches_monte_carlo() {
+    for field in TestField::all() {
+        let (guiding, _) = trained(&field, LeafRule::L2);
+        let w = &field.workload;
+        let mut rng = Rng::new(41);
+        for _ in 0..3 {
+            let x =
+                sdguide::synthetic::room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+            let dist = guiding.distribution(x);
+            let n = 200_000;
+            let truth = w.light.integral(x);
+            // Monte Carlo: the mean within 4σ of the integral, and the sample variance within
+            // 5 standard errors of the exact one (standard error from the fourth moment).
+            let (mut s1, mut s2, mut s4) = (0.0f64, 0.0f64, 0.0f64);
+            for _ in 0..n {
+                let (d, p) = dist.sample(rng.next_vec2());
+                let v = f64::from(w.value(x, d, &mut rng)) / f64::from(p) - truth;
+                s1 += v;
+                s2 += v * v;
+                s4 += v * v * v * v;
+            }
+            let nf = n as f64;
+            let (bias, var) = (s1 / nf, s2 / nf);
+            let se_mean = (var / nf).sqrt();
+            assert!(
+                bias.abs() < 4.0 * se_mean,
+                "{}: bias {bias} ± {se_mean}",
+                field.name
+            );
+            let leaves = dist.leaves();
+            let cells: Vec<_> = leaves.iter().map(|(c, _)| *c).collect();
+            let integrals = cell_integrals(w, x, &cells);
+            let exact_second: f64 = leaves
+                .iter()
+                .zip(&integrals)
+                .map(|((c, p), i)| 4.0 * std::f64::consts::PI * c.area() * i.second / f64::from(*p))
+                .sum();
+            let exact = exact_second - truth * truth;
+            let se_var = ((s4 / nf - var * var) / nf).sqrt();
+            assert!(
+                (var - exact).abs() < 5.0 * se_var,
+                "{}: Monte Carlo variance {var} ± {se_var} vs exact {exact}",
+                field.name
+            );
+        }
+    }
+}
+
+#[test]
+fn the_learned_guide_probability_beats_a_fixed_half() {
+    for field in TestField::all() {
+        let field = field.with_bsdf();
+        let (_, report) = trained(&field, LeafRule::L2);
+        let s = report.selection.unwrap();
+        // Exact variances of the same trained guide with two selection probabilities. (How
+        // close the learned one comes to the best is measured, not asserted: the guide changes
+        // every iteration, and with it the optimum the Newton steps chase. Convergence on a
+        // fixed problem is `tests/selection.rs`.)
+        assert!(s.best <= s.learned, "{}: {s:?}", field.name);
+        assert!(s.learned < s.half, "{}: {s:?}", field.name);
+    }
+}
