@@ -15,7 +15,7 @@
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
 use sdguide::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
-use sdguide::{GuidingConfig, GuidingField, LeafRule, Sample};
+use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Sample, SpatialFilter};
 use std::hint::black_box;
 use std::sync::OnceLock;
 
@@ -30,26 +30,23 @@ fn workload() -> Workload {
     }
 }
 
-/// The field trained on the standard workload, shared by all benchmarks (trained once).
+/// The field trained on the standard workload with the default configuration, shared by all
+/// benchmarks (trained once).
 fn trained() -> &'static GuidingField {
     static FIELD: OnceLock<GuidingField> = OnceLock::new();
-    FIELD.get_or_init(|| {
-        let first = std::env::var("SDGUIDE_BENCH_BUDGET")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(1_000_000);
-        let mut field = GuidingField::new(
-            room_bounds(),
-            GuidingConfig {
-                rule: LeafRule::L2,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        workload().train(&mut field, 6, first);
-        eprintln!("trained field: {:?}", field.stats());
-        field
-    })
+    FIELD.get_or_init(|| trained_with(GuidingConfig::default()))
+}
+
+/// A field trained on the standard workload with `config`.
+fn trained_with(config: GuidingConfig) -> GuidingField {
+    let first = std::env::var("SDGUIDE_BENCH_BUDGET")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1_000_000);
+    let mut field = GuidingField::new(room_bounds(), config).unwrap();
+    workload().train(&mut field, 6, first);
+    eprintln!("trained field: {:?}", field.stats());
+    field
 }
 
 /// A batch of samples as the workload's renderer would record them.
@@ -74,6 +71,40 @@ fn bench_record(c: &mut Criterion) {
     g.throughput(Throughput::Elements(BATCH as u64));
     g.bench_function("1-thread", |b| {
         b.iter(|| field.record_all(black_box(&batch)))
+    });
+    // The filters and the mixture terms, each on a field trained with that configuration
+    // (the default is the directional box filter).
+    for (name, spatial, directional) in [
+        (
+            "1-thread, no filter",
+            SpatialFilter::Nearest,
+            DirectionalFilter::Nearest,
+        ),
+        (
+            "1-thread, stochastic spatial",
+            SpatialFilter::Stochastic,
+            DirectionalFilter::Box,
+        ),
+        (
+            "1-thread, box spatial",
+            SpatialFilter::Box,
+            DirectionalFilter::Box,
+        ),
+    ] {
+        let variant = trained_with(GuidingConfig {
+            spatial_filter: spatial,
+            directional_filter: directional,
+            ..GuidingConfig::default()
+        });
+        let batch = samples(&variant);
+        g.bench_function(name, |b| b.iter(|| variant.record_all(black_box(&batch))));
+    }
+    let with_mixture: Vec<Sample> = batch
+        .iter()
+        .map(|s| s.with_mixture(s.value * 0.3, 0.3, s.pdf))
+        .collect();
+    g.bench_function("1-thread, with mixture terms", |b| {
+        b.iter(|| field.record_all(black_box(&with_mixture)))
     });
     g.bench_function("2-threads", |b| {
         b.iter(|| {

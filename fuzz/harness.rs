@@ -6,7 +6,9 @@
 //! and a failing one is a bug the fuzzer found.
 
 use glam::{Vec2, Vec3};
-use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Sample};
+use sdguide::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Sample, SpatialFilter,
+};
 
 /// At most this many operations and refines per input, so every input runs in milliseconds.
 const MAX_OPS: usize = 256;
@@ -53,8 +55,14 @@ pub fn field_ops(data: &[u8]) {
                 else {
                     break;
                 };
+                // The high bit of `n` adds mixture terms (integrand v, BSDF pdf `pdf`, guide pdf
+                // `v`): arbitrary values for the guide-selection sums.
+                let mut sample = Sample::new(p, d, v, pdf);
+                if n & 0x80 != 0 {
+                    sample = sample.with_mixture(v, pdf, v.abs());
+                }
                 for _ in 0..=(n % 16) {
-                    field.record(&Sample::new(p, d, v, pdf));
+                    field.record(&sample);
                 }
             }
             2 if refines < MAX_REFINES => {
@@ -103,6 +111,17 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
     };
     let bounds = Aabb::new(b.vec3()?, b.vec3()?);
     config.prior_samples = b.f32()?;
+    let filters = b.u8()?;
+    config.spatial_filter = [
+        SpatialFilter::Nearest,
+        SpatialFilter::Stochastic,
+        SpatialFilter::Box,
+    ][usize::from(filters % 3)];
+    config.directional_filter = if filters & 4 == 0 {
+        DirectionalFilter::Nearest
+    } else {
+        DirectionalFilter::Box
+    };
     GuidingField::new(bounds, config).ok()
 }
 

@@ -15,8 +15,7 @@
 use crate::moments::AtomicMoments;
 use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
 use crate::selection::{
-    GuideSelection, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
-    SelectionSums,
+    GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
 };
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::stats::RejectCounters;
@@ -708,8 +707,7 @@ fn decode_selection(bytes: &[u8], trees: &mut [DirectionalTree]) -> Result<(), C
             curvature: r.f64()?,
             count: r.u64()?,
         };
-        let in_range = (MIN_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY).contains(&probability)
-            || probability == INITIAL_GUIDE_PROBABILITY;
+        let in_range = (MIN_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY).contains(&probability);
         let sums_ok = sums.gradient.is_finite()
             && sums.curvature.is_finite()
             && sums.curvature >= 0.0

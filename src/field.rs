@@ -147,7 +147,7 @@ impl GuidingField {
                 let cube = self.spatial.cube();
                 let (lo, hi) = ((p - half).max(cube.min), (p + half).min(cube.max));
                 let volume = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
-                if !(volume > 0.0) {
+                if volume <= 0.0 {
                     self.insert_directional(home, square, w);
                     return Ok(());
                 }
@@ -382,10 +382,9 @@ impl DirectionalDistribution<'_> {
     }
 
     /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
-    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, in
-    /// `[`[`MIN_GUIDE_PROBABILITY`](crate::selection::MIN_GUIDE_PROBABILITY)`,
-    /// `[`MAX_GUIDE_PROBABILITY`](crate::selection::MAX_GUIDE_PROBABILITY)`]`; ½ until the cell
-    /// has learned it from samples recorded with [`Sample::with_mixture`].
+    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and 0.95 (see
+    /// [`selection`](crate::selection)); ½ until the cell has learned it from samples recorded
+    /// with [`Sample::with_mixture`].
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.guide_probability

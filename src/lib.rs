@@ -11,9 +11,11 @@
 //! ## Data flow
 //!
 //! ```text
-//!   record   render threads, &self, lock-free     Sample ─► spatial::leaf_at ─► quadtree leaf moments
-//!   refine   between iterations, &mut self        moments ─► rule masses ─► sampling tree + new topology
-//!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω)
+//!   record   render threads, &self, lock-free     Sample ─► filter ─► spatial leaf ─► quadtree leaf moments
+//!                                                  (mixture terms ─► the leaf's guide-selection sums)
+//!   refine   between iterations, &mut self        moments ─► shrinkage ─► rule masses ─► sampling tree
+//!                                                  + new topology; guide probability ─► one Newton step
+//!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()
 //!
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
@@ -52,7 +54,8 @@
 //! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
 //! - [`selection`]: the per-cell probability of sampling the guide rather than the BSDF.
-//! - [`synthetic`]: analytic light fields and a training workload for tests and benchmarks.
+//! - [`synthetic`]: analytic light fields, a BSDF and a training workload for tests and
+//!   benchmarks.
 //! - [`quality`]: the exact relative variance of a trained field and the oracle bound on its
 //!   partition.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes

@@ -345,7 +345,7 @@ impl RecordingTree {
         let (x0, x1) = ((sx - 0.5 * size).max(0.0), (sx + 0.5 * size).min(1.0));
         let (y0, y1) = (sy - 0.5 * size, sy + 0.5 * size);
         let area = (x1 - x0) * size;
-        if !(area > 0.0) {
+        if area <= 0.0 {
             return self.record_sums(s, (w1, w2));
         }
         let overlap_y = |c0: f64, c1: f64| {

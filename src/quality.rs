@@ -12,7 +12,7 @@
 //!
 //! (`E[v²]` includes the noise of the values), so its relative variance
 //! `relvar(x) = E[(v/p)²]/μ(x)² − 1` needs no Monte Carlo: [`cell_integrals`] computes the `I2_i`
-//! by Gauss–Legendre quadrature of the analytic [`LightField`](crate::synthetic::LightField).
+//! by Gauss–Legendre quadrature of the analytic [`LightField`].
 //!
 //! **The oracle.** One spatial cell's distribution serves every position in the cell, so the
 //! best piecewise-constant density on the learned partition — spatial cells and their
@@ -128,10 +128,9 @@ pub struct CellIntegrals {
 
 /// Quadrature step (radians) for `cell` at `x`: half the angular width `1/sqrt(κ)` of the
 /// sharpest lobe whose mean direction lies within 7 widths of the cell (beyond that a lobe is
-/// below `e^{-24}` of its peak) or of the workload's BSDF, and a quarter radian where no lobe
-/// comes near. With two
-/// Gauss–Legendre points per step and axis the rule's error is far below 0.1% (tested against
-/// the closed forms).
+/// below `e^{-24}` of its peak), and of the workload's BSDF; a quarter radian where nothing comes
+/// near. With two Gauss–Legendre points per step and axis the rule's error is far below 0.1%
+/// (tested against the closed forms).
 fn step(workload: &Workload, x: Vec3, cell: &DirectionalCell) -> f64 {
     let corner = |i: u32, j: u32| {
         let s = cell.origin + 0.5 * cell.size * glam::Vec2::new(i as f32, j as f32);
@@ -505,7 +504,7 @@ pub fn selection_variances(
         sum.best += relvar(golden_section_min(
             f64::from(MIN_GUIDE_PROBABILITY),
             f64::from(MAX_GUIDE_PROBABILITY),
-            &relvar,
+            relvar,
         ));
         sum.probability += learned;
     }

@@ -17,8 +17,8 @@
 //! ```
 //!
 //! Each spatial leaf accumulates the two sums while recording (lock-free, like the moments) and
-//! [`refine`](crate::GuidingField::refine) takes the step, clamped to
-//! `[`[`MIN_GUIDE_PROBABILITY`]`, `[`MAX_GUIDE_PROBABILITY`]`]`: the defensive floor that keeps
+//! [`refine`](crate::GuidingField::refine) takes the step, clamped between
+//! [`MIN_GUIDE_PROBABILITY`] and [`MAX_GUIDE_PROBABILITY`] (0.05 and 0.95): the defensive floor that keeps
 //! the BSDF (which may be the only technique covering a direction the guide has not learned)
 //! and the guide always in play. A leaf with fewer than [`MIN_SELECTION_SAMPLES`] mixture
 //! samples in an iteration keeps its probability; a new leaf starts at ½ (children after a

@@ -145,11 +145,7 @@ impl SpatialTree {
                 f((n & !LEAF_BIT) as usize, volume);
                 continue;
             }
-            let axis = (depth % 3) as usize;
-            let mid = bounds.center()[axis];
-            let (mut low, mut high) = (bounds, bounds);
-            low.max[axis] = mid;
-            high.min[axis] = mid;
+            let (low, high) = halves(bounds, depth);
             // Depth-first: at most one pending sibling per level.
             if top + 2 <= stack.len() {
                 stack[top] = (n, low, depth + 1);
@@ -275,11 +271,7 @@ impl SpatialTree {
                 f(node, (n & !LEAF_BIT) as usize, bounds, depth);
                 continue;
             }
-            let axis = (depth % 3) as usize;
-            let mid = bounds.center()[axis];
-            let (mut lo, mut hi) = (bounds, bounds);
-            lo.max[axis] = mid;
-            hi.min[axis] = mid;
+            let (lo, hi) = halves(bounds, depth);
             stack.push((n as usize, lo, depth + 1));
             stack.push((n as usize + 1, hi, depth + 1));
         }
@@ -292,6 +284,16 @@ impl SpatialTree {
     pub(crate) fn bytes(&self) -> usize {
         std::mem::size_of_val(self.nodes.as_slice()) + std::mem::size_of_val(&*self.grid)
     }
+}
+
+/// The two children of a node's box at `depth`: split at the midpoint of axis `depth mod 3`.
+fn halves(bounds: Aabb, depth: u32) -> (Aabb, Aabb) {
+    let axis = (depth % 3) as usize;
+    let mid = bounds.center()[axis];
+    let (mut low, mut high) = (bounds, bounds);
+    low.max[axis] = mid;
+    high.min[axis] = mid;
+    (low, high)
 }
 
 #[cfg(test)]

@@ -108,45 +108,41 @@ fn quadrants(field: &GuidingField, cell: usize) -> ([f64; 4], [u64; 4]) {
     (s, n)
 }
 
+/// Records one sample of weight `v/p` at point `s` of the square into a fresh one-cell field with
+/// the directional box filter; returns the quadrants' `S1` and counts.
+fn box_recorded(s: Vec2, v: f32, p: f32) -> ([f64; 4], [u64; 4]) {
+    let field = GuidingField::new(
+        unit_box(),
+        config(SpatialFilter::Nearest, DirectionalFilter::Box),
+    )
+    .unwrap();
+    field.record(&Sample::new(Vec3::splat(0.5), square_to_direction(s), v, p));
+    quadrants(&field, 0)
+}
+
 #[test]
 fn directional_box_shares_follow_the_overlap_and_wrap_at_the_seam() {
-    let field = GuidingField::new(
-        unit_box(),
-        config(SpatialFilter::Nearest, DirectionalFilter::Box),
-    )
-    .unwrap();
+    let close = |s: [f64; 4], expected: [f64; 4]| {
+        for q in 0..4 {
+            assert!(
+                (s[q] - expected[q]).abs() < 1e-5,
+                "q{q}: {s:?} vs {expected:?}"
+            );
+        }
+    };
     // The leaf holding (0.3, 0.95) is the quadrant [0, 0.5) × [0.5, 1); the half-size square
     // around the point covers x ∈ [0.05, 0.55), y ∈ [0.7, 1.2) = [0.7, 1) ∪ [0, 0.2).
-    // Shares: x 0.9 | 0.1, y 0.4 (wrapped, low half) | 0.6 (high half).
-    let d = square_to_direction(Vec2::new(0.3, 0.95));
-    field.record(&Sample::new(Vec3::splat(0.5), d, 2.0, 0.5));
-    let (s, n) = quadrants(&field, 0);
-    let expected = [0.9 * 0.4, 0.1 * 0.4, 0.9 * 0.6, 0.1 * 0.6].map(|f| 4.0 * f);
-    for q in 0..4 {
-        assert!(
-            (s[q] - expected[q]).abs() < 1e-5,
-            "q{q}: {s:?} vs {expected:?}"
-        );
-    }
+    // Shares: x 0.9 | 0.1, y 0.4 (wrapped, low half) | 0.6 (high half); v/p = 4.
+    let (s, n) = box_recorded(Vec2::new(0.3, 0.95), 2.0, 0.5);
+    close(
+        s,
+        [0.9 * 0.4, 0.1 * 0.4, 0.9 * 0.6, 0.1 * 0.6].map(|f| 4.0 * f),
+    );
     assert_eq!(n, [0, 0, 1, 0]);
-
     // At the pole the square is clipped to x ∈ [0, 0.35) and the shares renormalized:
     // y ∈ [0.15, 0.65) gives 0.7 below 0.5 and 0.3 above.
-    let field = GuidingField::new(
-        unit_box(),
-        config(SpatialFilter::Nearest, DirectionalFilter::Box),
-    )
-    .unwrap();
-    let d = square_to_direction(Vec2::new(0.1, 0.4));
-    field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
-    let (s, _) = quadrants(&field, 0);
-    let expected = [0.7, 0.0, 0.3, 0.0];
-    for q in 0..4 {
-        assert!(
-            (s[q] - expected[q]).abs() < 1e-5,
-            "q{q}: {s:?} vs {expected:?}"
-        );
-    }
+    let (s, _) = box_recorded(Vec2::new(0.1, 0.4), 1.0, 1.0);
+    close(s, [0.7, 0.0, 0.3, 0.0]);
 }
 
 #[test]

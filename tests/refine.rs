@@ -70,21 +70,26 @@ fn leaf_masses_follow_the_closed_form() {
             LeafRule::L1 => S1.to_vec(),
             LeafRule::L2 => S2.iter().map(|s| (0.25 * s).sqrt()).collect(),
         };
-        let total: f64 = raw.iter().sum();
-        let dist = field.distribution(Vec3::splat(0.5));
-        let leaves = dist.leaves();
-        assert_eq!(leaves.len(), 4);
-        for (cell, p) in leaves {
-            let q = usize::from(cell.origin.x > 0.0) | usize::from(cell.origin.y > 0.0) << 1;
-            let expected = (1.0 - eps) * raw[q] / total + eps * 0.25;
-            assert!(
-                (f64::from(p) - expected).abs() < 1e-6,
-                "{rule:?} q{q}: {p} vs {expected}"
-            );
-            // pdf inside the cell is its mass over its solid angle (π for a quarter sphere).
-            let pdf = dist.pdf(quadrant_direction(q));
-            assert!((f64::from(pdf) - expected / std::f64::consts::PI).abs() < 1e-6);
-        }
+        assert_quadrant_masses(&field, &raw, eps);
+    }
+}
+
+/// The four quadrants' probabilities are `(1 − ε)·raw_q/Σ raw + ε/4`, and the pdf inside each is
+/// its probability over its solid angle (π for a quarter sphere).
+fn assert_quadrant_masses(field: &GuidingField, raw: &[f64], eps: f64) {
+    let total: f64 = raw.iter().sum();
+    let dist = field.distribution(Vec3::splat(0.5));
+    let leaves = dist.leaves();
+    assert_eq!(leaves.len(), 4);
+    for (cell, p) in leaves {
+        let q = usize::from(cell.origin.x > 0.0) | usize::from(cell.origin.y > 0.0) << 1;
+        let expected = (1.0 - eps) * raw[q] / total + eps * 0.25;
+        assert!(
+            (f64::from(p) - expected).abs() < 1e-6,
+            "q{q}: {p} vs {expected}"
+        );
+        let pdf = dist.pdf(quadrant_direction(q));
+        assert!((f64::from(pdf) - expected / std::f64::consts::PI).abs() < 1e-6);
     }
 }
 
@@ -103,19 +108,9 @@ fn sparse_leaves_are_shrunk_toward_their_parent() {
         })
         .collect();
     let raw: Vec<f64> = shrunk.iter().map(|s| (0.25 * s).sqrt()).collect();
-    let total: f64 = raw.iter().sum();
-    let leaves = field.distribution(Vec3::splat(0.5)).leaves();
-    assert_eq!(leaves.len(), 4);
-    for (cell, p) in leaves {
-        let q = usize::from(cell.origin.x > 0.0) | usize::from(cell.origin.y > 0.0) << 1;
-        let expected = (1.0 - eps) * raw[q] / total + eps * 0.25;
-        assert!(
-            (f64::from(p) - expected).abs() < 1e-6,
-            "q{q}: {p} vs {expected}"
-        );
-    }
+    assert_quadrant_masses(&field, &raw, eps);
     // Without shrinkage q3 would have the floor only.
-    assert!(raw[3] / total > 0.1);
+    assert!(raw[3] / raw.iter().sum::<f64>() > 0.1);
 }
 
 #[test]

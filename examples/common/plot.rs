@@ -61,7 +61,7 @@ impl Canvas {
 /// Tick values for a logarithmic axis over `[lo, hi]`: 1, 2 and 5 times powers of ten when the
 /// range is short, powers of ten otherwise.
 fn ticks(lo: f64, hi: f64) -> Vec<f64> {
-    let mantissas: &[f64] = if hi / lo < 30.0 {
+    let mantissas: &[f64] = if hi / lo < 100.0 {
         &[1.0, 2.0, 5.0]
     } else {
         &[1.0]
