@@ -16,7 +16,6 @@
 //! node's local frame. Nodes are stored so that a child always comes after its parent, which
 //! lets bottom-up passes run as one reverse sweep.
 
-use crate::MAX_DIRECTIONAL_DEPTH;
 use crate::filter::overlap;
 use crate::moments::AtomicMoments;
 use crate::selection::GuideSelection;
@@ -331,10 +330,15 @@ impl RecordingTree {
         self.record_box_sums(s, weights);
     }
 
-    /// Adds weights `(v/p, v²/p)` to the leaves that a square the size of the leaf holding `s`,
+    /// Adds weights `(v/p, v²/p)` to the cells that a square the size of the leaf holding `s`,
     /// centred on `s`, overlaps, in proportion to the overlap (clipped at `x = 0, 1`, wrapped
-    /// around in `y`, the `φ` seam). No allocation: the depth-first walk keeps its stack in an
-    /// array (at most 3 pending cells per level plus the 4 children of the one expanded).
+    /// around in `y`, the `φ` seam). A leaf gets its share; a region the square overlaps that
+    /// is subdivided more finely than the square gets its share in the one leaf holding the
+    /// centre of the overlap — the filter smooths at the scale of the sample's own leaf, so the
+    /// work per sample is bounded (a few cells) however fine the neighbourhood.
+    ///
+    /// No allocation: the walk starts at the deepest node whose cell holds the whole square and
+    /// goes down level by level, at most 4 cells at a time.
     pub(crate) fn record_box_sums(&self, s: Vec2, (w1, w2): (f64, f64)) {
         if w1 == 0.0 {
             return;
@@ -348,32 +352,62 @@ impl RecordingTree {
         if area <= 0.0 {
             return self.record_sums(s, (w1, w2));
         }
+        // The y-interval of the square's copy (shifted by −1, 0 or +1) that overlaps [c0, c1).
         let overlap_y = |c0: f64, c1: f64| {
             [-1.0, 0.0, 1.0]
-                .iter()
-                .map(|k| overlap(y0 + k, y1 + k, c0, c1))
-                .sum::<f64>()
+                .into_iter()
+                .map(|k| (overlap(y0 + k, y1 + k, c0, c1), k))
+                .find(|(f, _)| *f > 0.0)
         };
-        let mut stack = [(0u32, 0.0f64, 0.0f64, 1.0f64); 4 * MAX_DIRECTIONAL_DEPTH as usize];
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let (node, ox, oy, size) = stack[top];
-            let half = 0.5 * size;
-            for (q, &slot) in self.nodes[node as usize].iter().enumerate() {
-                let (cx, cy) = (ox + (q & 1) as f64 * half, oy + (q >> 1) as f64 * half);
-                let f = overlap(x0, x1, cx, cx + half) * overlap_y(cy, cy + half);
-                if f <= 0.0 {
-                    continue;
+        // 1. Down to the deepest node whose cell holds the whole square (the root if it wraps).
+        let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
+        if y0 >= 0.0 && y1 <= 1.0 {
+            loop {
+                let half = 0.5 * cell;
+                let (ix, iy) = (usize::from(x0 >= ox + half), usize::from(y0 >= oy + half));
+                let (cx, cy) = (ox + ix as f64 * half, oy + iy as f64 * half);
+                let slot = self.nodes[node as usize][ix | iy << 1];
+                if x1 > cx + half || y1 > cy + half || slot & LEAF_BIT != 0 {
+                    break;
                 }
-                if slot & LEAF_BIT != 0 {
-                    let share = f / area;
-                    self.moments[(slot & !LEAF_BIT) as usize].add_sums((w1 * share, w2 * share));
-                } else if top < stack.len() {
-                    stack[top] = (slot, cx, cy, half);
-                    top += 1;
+                (node, ox, oy, cell) = (slot, cx, cy, half);
+            }
+        }
+        // 2. Level by level below it, down to cells of the square's size. The square overlaps
+        //    at most 2 × 2 cells of any level at least its size (its copies across the seam
+        //    included), so each level holds at most 4 cells.
+        let mut level = [(node, ox, oy); 4];
+        let mut cells = 1;
+        while cells > 0 {
+            let half = 0.5 * cell;
+            let mut next = [(0u32, 0.0f64, 0.0f64); 4];
+            let mut pending = 0;
+            for &(node, ox, oy) in &level[..cells] {
+                for (q, &slot) in self.nodes[node as usize].iter().enumerate() {
+                    let (cx, cy) = (ox + (q & 1) as f64 * half, oy + (q >> 1) as f64 * half);
+                    let fx = overlap(x0, x1, cx, cx + half);
+                    let Some((fy, k)) = overlap_y(cy, cy + half).filter(|_| fx > 0.0) else {
+                        continue;
+                    };
+                    let share = fx * fy / area;
+                    let part = (w1 * share, w2 * share);
+                    if slot & LEAF_BIT != 0 {
+                        self.moments[(slot & !LEAF_BIT) as usize].add_sums(part);
+                    } else if half <= size || pending == next.len() {
+                        // Finer than the square (or, unreachably, a fifth cell): the leaf
+                        // holding the overlap's centre.
+                        let centre = Vec2::new(
+                            (0.5 * (x0.max(cx) + x1.min(cx + half))) as f32,
+                            (0.5 * ((y0 + k).max(cy) + (y1 + k).min(cy + half))) as f32,
+                        );
+                        self.moments[self.leaf_of(centre).0].add_sums(part);
+                    } else {
+                        next[pending] = (slot, cx, cy);
+                        pending += 1;
+                    }
                 }
             }
+            (level, cells, cell) = (next, pending, half);
         }
     }
 
