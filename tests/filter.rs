@@ -198,3 +198,54 @@ fn stochastic_filter_moves_by_the_callers_jitter_or_a_deterministic_hash() {
     // cube's faces): each half holds 500 of 1000 within 5σ (σ = sqrt(1000/4) ≈ 15.8).
     assert!(counts(&a)[left].abs_diff(500) < 79, "{:?}", counts(&a));
 }
+
+#[test]
+fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
+    // Light only in [0.75, 1) × [0, 0.5) (so that no square spills into other quadrants), and
+    // no shrinkage: after one refine the quadrant [0.5, 1) × [0, 0.5) is subdivided, the dark
+    // quadrant [0, 0.5)² stays one leaf.
+    let mut field = GuidingField::new(
+        unit_box(),
+        GuidingConfig {
+            prior_samples: 0.0,
+            ..config(SpatialFilter::Nearest, DirectionalFilter::Box)
+        },
+    )
+    .unwrap();
+    let mut rng = Rng::new(2);
+    for _ in 0..4000 {
+        let s = Vec2::new(0.75 + 0.25 * rng.next_f32(), 0.5 * rng.next_f32());
+        field.record(&Sample::new(
+            Vec3::splat(0.5),
+            square_to_direction(s),
+            1.0,
+            1.0,
+        ));
+    }
+    field.refine();
+    // A sample at (0.45, 0.25) in the dark quadrant: the square [0.2, 0.7) × [0, 0.5) lies
+    // 60% in its own leaf and 40% in the subdivided quadrant, which takes it in the leaf that
+    // holds the overlap's centre (0.6, 0.25).
+    let d = square_to_direction(Vec2::new(0.45, 0.25));
+    field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
+    let cell = field.cells().next().unwrap();
+    let contains = |l: &sdguide::DirectionalCell, x: f32, y: f32| {
+        (l.origin.x..l.origin.x + l.size).contains(&x)
+            && (l.origin.y..l.origin.y + l.size).contains(&y)
+    };
+    let mut found = 0;
+    for (leaf, m) in cell.recorded() {
+        if m.sum == 0.0 {
+            continue;
+        }
+        found += 1;
+        if contains(&leaf, 0.45, 0.25) {
+            assert_eq!(leaf.size, 0.5, "the dark quadrant is one leaf");
+            assert!((m.sum - 0.6).abs() < 1e-6 && m.count == 1, "{leaf:?} {m:?}");
+        } else {
+            assert!(leaf.size < 0.5 && contains(&leaf, 0.6, 0.25), "{leaf:?}");
+            assert!((m.sum - 0.4).abs() < 1e-6 && m.count == 0, "{leaf:?} {m:?}");
+        }
+    }
+    assert_eq!(found, 2);
+}
