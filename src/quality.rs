@@ -350,6 +350,18 @@ impl Default for Budget {
 /// Trains a field with `config` on `test`'s workload and [`evaluate`]s it after every
 /// iteration. Returns the field and, per iteration, the samples trained on so far and the
 /// report.
+///
+/// ```
+/// use sdguide::quality::{Budget, Holdout, TestField, train};
+/// use sdguide::GuidingConfig;
+/// let field = &TestField::all()[0];
+/// let budget = Budget { iterations: 2, first: 20_000 };
+/// let holdout = Holdout { cells: 2, positions: 2, seed: 1 };
+/// let (_, reports) = train(field, GuidingConfig::default(), budget, holdout)?;
+/// let last = reports.last().unwrap().1.variances;
+/// assert!(last.oracle <= last.learned && last.learned < last.uniform);
+/// # Ok::<(), sdguide::ConfigError>(())
+/// ```
 pub fn train(
     test: &TestField,
     config: GuidingConfig,
@@ -517,7 +529,12 @@ pub fn selection_variances(
     })
 }
 
-/// The minimizer of a convex `f` on `[lo, hi]`, to 1e-6.
+/// The minimizer of a convex `f` on `[lo, hi]`, to 1e-6 (golden-section search).
+///
+/// ```
+/// let x = sdguide::quality::golden_section_min(0.0, 1.0, |a| 1.0 / a + 4.0 / (1.0 - a));
+/// assert!((x - 1.0 / 3.0).abs() < 1e-5); // the minimizer of 1/a + 4/(1 − a)
+/// ```
 pub fn golden_section_min(mut lo: f64, mut hi: f64, f: impl Fn(f64) -> f64) -> f64 {
     let r = (5f64.sqrt() - 1.0) / 2.0;
     let (mut a, mut b) = (hi - r * (hi - lo), lo + r * (hi - lo));

@@ -62,6 +62,22 @@ impl Sample {
 
     /// The sample with its mixture terms: the integrand `L·f_s·|cos θ|`, and the BSDF's and
     /// the guide's pdfs of the direction. `pdf` stays the mixture pdf it was drawn with.
+    ///
+    /// ```
+    /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
+    /// use glam::{Vec2, Vec3};
+    /// let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default())?;
+    /// let x = Vec3::splat(0.5);
+    /// let dist = field.distribution(x);
+    /// let a = dist.guide_probability(); // ½ until the cell has learned it
+    /// let (d, guide_pdf) = dist.sample(Vec2::new(0.2, 0.9));
+    /// let bsdf_pdf = 0.1; // the BSDF's pdf of `d`
+    /// let (radiance, bsdf_cos) = (2.0, 0.05);
+    /// let q = a * guide_pdf + (1.0 - a) * bsdf_pdf;
+    /// let sample = Sample::new(x, d, radiance, q).with_mixture(radiance * bsdf_cos, bsdf_pdf, guide_pdf);
+    /// assert!(field.try_record(&sample).is_ok());
+    /// # Ok::<(), sdguide::ConfigError>(())
+    /// ```
     pub const fn with_mixture(mut self, integrand: f32, bsdf_pdf: f32, guide_pdf: f32) -> Self {
         self.mixture = Some(MixtureTerms {
             integrand,
@@ -72,6 +88,17 @@ impl Sample {
     }
 
     /// The sample with the stochastic spatial filter's random numbers `u ∈ [0, 1)³`.
+    ///
+    /// ```
+    /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample, SpatialFilter};
+    /// use glam::Vec3;
+    /// let config = GuidingConfig { spatial_filter: SpatialFilter::Stochastic, ..Default::default() };
+    /// let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config)?;
+    /// let s = Sample::new(Vec3::splat(0.5), Vec3::Z, 1.0, 0.5).with_jitter(Vec3::new(0.1, 0.7, 0.4));
+    /// field.record(&s);
+    /// assert_eq!(field.stats().samples_recorded, 1);
+    /// # Ok::<(), sdguide::ConfigError>(())
+    /// ```
     pub const fn with_jitter(mut self, u: Vec3) -> Self {
         self.jitter = Some(u);
         self
