@@ -53,6 +53,23 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
         (Sample::new(p, Vec3::Z, 1.0, -2.0), "pdf"),
         (Sample::new(p, Vec3::Z, 1.0, NAN), "pdf"),
         (Sample::new(p, Vec3::Z, 1.0, INF), "pdf"),
+        // Mixture terms are checked like the value and the pdf.
+        (
+            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(NAN, 1.0, 1.0),
+            "value",
+        ),
+        (
+            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(-1.0, 1.0, 1.0),
+            "value",
+        ),
+        (
+            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, -1.0, 1.0),
+            "pdf",
+        ),
+        (
+            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, 1.0, INF),
+            "pdf",
+        ),
     ];
     let mut expected = Rejections::default();
     for (s, reason) in bad {
@@ -74,14 +91,20 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
         Sample::new(p, Vec3::new(0.0, 3.0, 4.0), 1.0, 1.0),
         Sample::new(p, Vec3::splat(f32::MAX), 1.0, 1.0),
         Sample::new(p, Vec3::new(0.0, 1e-30, -1e-30), 1.0, 1.0),
+        // Mixture terms at their extremes: a zero BSDF pdf, huge values, a subnormal mixture pdf.
+        Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, 0.0, 1.0),
+        Sample::new(p, Vec3::Z, f32::MAX, f32::from_bits(1)).with_mixture(f32::MAX, f32::MAX, 0.0),
     ];
     field.record_all(&good);
     let stats = field.stats();
     assert_eq!(stats.rejected, expected);
     assert_eq!(stats.samples_recorded, good.len() as u64);
     field.refine();
-    // The field stays a valid distribution: finite, positive, integrating to 1.
+    // The field stays a valid distribution: finite, positive, integrating to 1; the guide
+    // probability stays in its bounds.
     let dist = field.distribution(p);
+    let a = dist.guide_probability();
+    assert!((0.05..=0.95).contains(&a), "{a}");
     for (_, m) in dist.leaves() {
         assert!(m.is_finite() && m > 0.0);
     }
@@ -124,9 +147,32 @@ fn queries_with_bad_arguments_stay_valid() {
 }
 
 #[test]
+fn any_jitter_is_recorded_into_a_valid_cell() {
+    // The stochastic filter's numbers are clamped (NaN and infinities included): every sample
+    // lands somewhere and is counted once.
+    let config = GuidingConfig {
+        spatial_filter: sdguide::SpatialFilter::Stochastic,
+        ..GuidingConfig::default()
+    };
+    let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config).unwrap();
+    let s = Sample::new(Vec3::splat(0.5), Vec3::Z, 1.0, 1.0);
+    let jitters = [
+        Vec3::splat(NAN),
+        Vec3::splat(INF),
+        Vec3::splat(-INF),
+        Vec3::new(2.0, -3.0, 0.5),
+        Vec3::splat(f32::MAX),
+    ];
+    for j in jitters {
+        assert!(field.try_record(&s.with_jitter(j)).is_ok());
+    }
+    assert_eq!(field.stats().samples_recorded, jitters.len() as u64);
+}
+
+#[test]
 fn absurd_configs_and_bounds_are_typed_errors() {
     let ok = GuidingConfig::default();
-    let cases: [(GuidingConfig, &str); 11] = [
+    let cases: [(GuidingConfig, &str); 13] = [
         (
             GuidingConfig {
                 spatial_threshold: NAN,
@@ -203,6 +249,20 @@ fn absurd_configs_and_bounds_are_typed_errors() {
                 ..ok.clone()
             },
             "max_memory_bytes",
+        ),
+        (
+            GuidingConfig {
+                prior_samples: NAN,
+                ..ok.clone()
+            },
+            "prior_samples",
+        ),
+        (
+            GuidingConfig {
+                prior_samples: -1.0,
+                ..ok.clone()
+            },
+            "prior_samples",
         ),
     ];
     let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
