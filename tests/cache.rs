@@ -280,6 +280,39 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "directional",
         "moments",
     );
+    // META 1.1: a filter this version does not define, a negative prior.
+    corrupt(
+        forge(&bytes, 1, 180, [7, 0, 0, 0]),
+        "meta",
+        "spatial filter",
+    );
+    corrupt(
+        forge(&bytes, 1, 176, (-1.0f32).to_le_bytes()),
+        "meta",
+        "prior_samples",
+    );
+    // SELECTION: a count that differs from the trees', a probability out of its bounds, a
+    // negative curvature sum.
+    corrupt(
+        forge(&bytes, 4, 0, 999u32.to_le_bytes()),
+        "selection",
+        "declared",
+    );
+    corrupt(
+        forge(&bytes, 4, 4, 0.99f32.to_le_bytes()),
+        "selection",
+        "probability",
+    );
+    corrupt(
+        forge(
+            &bytes,
+            4,
+            4 + 20,
+            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
+        ),
+        "selection",
+        "sums",
+    );
 }
 
 #[test]
