@@ -122,30 +122,38 @@ impl GuidingField {
             return Err(RejectReason::OutOfBounds);
         }
         let w = weights(sample.value, sample.pdf);
+        // The sample's own leaf, and for the spatial filters its extent: one lookup.
+        let (home, extent) = match self.config.spatial_filter {
+            SpatialFilter::Nearest => (self.spatial.leaf_at(p), Vec3::ZERO),
+            SpatialFilter::Stochastic | SpatialFilter::Box => {
+                let l = self.spatial.locate(p);
+                (l.leaf, l.bounds.extent())
+            }
+        };
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
-            let leaf = &self.trees[self.spatial.leaf_at(p)];
-            leaf.selection
+            self.trees[home]
+                .selection
                 .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
         }
         match self.config.spatial_filter {
-            SpatialFilter::Nearest => self.insert_directional(self.spatial.leaf_at(p), square, w),
+            SpatialFilter::Nearest => self.insert_directional(home, square, w),
             SpatialFilter::Stochastic => {
-                let cell = self.spatial.locate(p).bounds;
                 let u = sample
                     .jitter
                     .unwrap_or_else(|| hash_jitter(p, sample.direction))
                     .clamp(Vec3::ZERO, Vec3::ONE);
-                let moved = self.spatial.cube().clamp(p + (u - 0.5) * cell.extent());
+                let moved = self.spatial.cube().clamp(p + (u - 0.5) * extent);
                 self.insert_directional(self.spatial.leaf_at(moved), square, w);
             }
             SpatialFilter::Box => {
                 // The sample counts in its own leaf; its weights spread over the leaf-sized box
                 // (clipped to the cube, shares renormalized to the clipped volume).
-                let home = self.spatial.leaf_at(p);
-                let half = 0.5 * self.spatial.locate(p).bounds.extent();
                 let cube = self.spatial.cube();
-                let (lo, hi) = ((p - half).max(cube.min), (p + half).min(cube.max));
+                let (lo, hi) = (
+                    (p - 0.5 * extent).max(cube.min),
+                    (p + 0.5 * extent).min(cube.max),
+                );
                 let volume = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
                 if volume <= 0.0 {
                     self.insert_directional(home, square, w);
