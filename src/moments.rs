@@ -121,8 +121,8 @@ impl AtomicMoments {
     /// An accumulator holding `m` (loading a cache).
     pub(crate) fn from_moments(m: Moments) -> Self {
         Self {
-            sum: AtomicF64(AtomicU64::new(m.sum.to_bits())),
-            sum_sq: AtomicF64(AtomicU64::new(m.sum_sq.to_bits())),
+            sum: AtomicF64::new(m.sum),
+            sum_sq: AtomicF64::new(m.sum_sq),
             count: AtomicU64::new(m.count),
         }
     }
