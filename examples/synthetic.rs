@@ -1,4 +1,4 @@
-//! The main job: train guiding fields on synthetic light and compare estimator variance.
+//! Train guiding fields on synthetic light and compare estimator variance.
 //!
 //! For each light field — the standard one (a sharp κ = 800 lobe, a broad κ = 60 lobe, ambient)
 //! with exact values, and the same with heavy-tailed noise on the lobes (E[ξ²] = 10) — two
@@ -7,11 +7,11 @@
 //! sampling and for sampling each learned distribution. The table gives the median over the
 //! points and the mean, which a few bad points can dominate (see the README's quality section).
 //!
-//! Each trained field is saved as a cache in `out/` (`demo-standard-l2.sdgc`, ...), for
+//! Each trained field is saved as a cache in `out/` (`synthetic-standard-l2.sdgc`, ...), for
 //! `examples/inspect.rs` to look at.
 //!
 //! ```text
-//! cargo run --release --example demo [-- --iterations 6 --budget 500000 --points 48 --samples 100000]
+//! cargo run --release --example synthetic [-- --iterations 6 --budget 500000 --points 48 --samples 100000]
 //! ```
 
 use glam::Vec3;
@@ -43,7 +43,9 @@ fn args() -> Args {
             ("--points", Some(v)) => a.points = v as usize,
             ("--samples", Some(v)) => a.samples = v,
             _ => {
-                eprintln!("usage: demo [--iterations N] [--budget N] [--points N] [--samples N]");
+                eprintln!(
+                    "usage: synthetic [--iterations N] [--budget N] [--points N] [--samples N]"
+                );
                 std::process::exit(2);
             }
         }
@@ -54,7 +56,7 @@ fn args() -> Args {
 fn main() {
     let args = args();
     println!(
-        "sdguide demo: {} iterations, budgets {}·2^k samples (½ uniform, ½ guided), {} held-out points × {} samples\n",
+        "sdguide synthetic: {} iterations, budgets {}·2^k samples (½ uniform, ½ guided), {} held-out points × {} samples\n",
         args.iterations, args.budget, args.points, args.samples
     );
     println!(
@@ -98,7 +100,10 @@ fn main() {
             let start = Instant::now();
             workload.train(&mut field, args.iterations, args.budget);
             let trained_in = start.elapsed();
-            let cache = format!("out/demo-{tag}-{}.sdgc", format!("{rule:?}").to_lowercase());
+            let cache = format!(
+                "out/synthetic-{tag}-{}.sdgc",
+                format!("{rule:?}").to_lowercase()
+            );
             field.save_to_path(&cache).expect("can write the cache");
             let relvar = relvars(&workload, &points, args.samples, |x| {
                 Some(field.distribution(x))

@@ -1,0 +1,304 @@
+//! The path tracer, and the reference for wiring sdguide into one.
+//!
+//! A unidirectional path tracer with next-event estimation and multiple importance sampling
+//! (power heuristic) and Russian roulette. With guiding, every scattering direction is drawn
+//! from the **one-sample mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the
+//! field's distribution at the vertex and `a` its learned guide probability. The wiring points
+//! are marked `GUIDING:` below; there are four:
+//!
+//! 1. at a vertex, look up the distribution once (`field.distribution(x)`);
+//! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
+//!    and for every next-event direction, since MIS must weigh the strategy actually used;
+//! 3. keep, per vertex, what the path later adds to the radiance arriving along the sampled
+//!    direction;
+//! 4. once the path is finished, record every vertex: position, direction, the luminance of that
+//!    incident radiance, the mixture pdf, and the mixture terms the guide probability learns
+//!    from. Between training passes the caller refines the field (no thread may render then).
+
+use crate::geometry::{Frame, Ray};
+use crate::material::{Material, luminance};
+use crate::rng::Rng;
+use crate::scene::Scene;
+use glam::Vec3;
+use sdguide::{DirectionalDistribution, GuidingField, Sample};
+
+/// Longest path, in scattering events.
+pub const MAX_DEPTH: usize = 10;
+/// Russian roulette starts after this many scattering events.
+const ROULETTE_DEPTH: usize = 3;
+
+/// How a render uses a guiding field.
+#[derive(Clone, Copy)]
+pub struct Guiding<'a> {
+    /// The field to sample (and to record into when `record` is set).
+    pub field: &'a GuidingField,
+    /// Whether finished paths are recorded into the field (training passes).
+    pub record: bool,
+    /// Probability of sampling the guide instead of the BSDF; `None` uses the field's learned
+    /// probability at each vertex.
+    pub guide_probability: Option<f32>,
+}
+
+/// A scattering direction drawn from a vertex's sampling mixture.
+#[derive(Clone, Copy, Debug)]
+pub struct DirectionSample {
+    /// World-space unit direction.
+    pub direction: Vec3,
+    /// The pdfs of `direction`.
+    pub pdf: MixturePdf,
+}
+
+/// The pdfs of one direction under the mixture and under its two techniques.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MixturePdf {
+    /// `q = a·guide + (1 − a)·bsdf`: what the direction was drawn with.
+    pub mixture: f32,
+    /// The BSDF sampling pdf.
+    pub bsdf: f32,
+    /// The guiding distribution's pdf (0 without guiding).
+    pub guide: f32,
+}
+
+/// The directional sampling strategy at one vertex: the BSDF's, mixed with the guide's when
+/// there is a guiding field.
+pub struct VertexSampler<'a> {
+    frame: Frame,
+    wo: Vec3,
+    material: &'a Material,
+    guide: Option<DirectionalDistribution<'a>>,
+    /// Probability of drawing from the guide.
+    a: f32,
+}
+
+impl<'a> VertexSampler<'a> {
+    /// The strategy at `position`, with shading normal `normal` (facing the viewer), outgoing
+    /// world direction `wo`, the surface's material, and the guiding field if any.
+    pub fn new(
+        position: Vec3,
+        normal: Vec3,
+        wo: Vec3,
+        material: &'a Material,
+        field: Option<&'a GuidingField>,
+    ) -> Self {
+        let frame = Frame::new(normal);
+        // GUIDING (1): one lookup per vertex; the distribution is a lock-free view.
+        let guide = field.map(|f| f.distribution(position));
+        let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
+        VertexSampler {
+            frame,
+            wo: frame.to_local(wo),
+            material,
+            guide,
+            a,
+        }
+    }
+
+    /// The same strategy with the guide drawn with probability `a` instead of the learned one.
+    pub fn with_guide_probability(self, a: f32) -> Self {
+        VertexSampler { a, ..self }
+    }
+
+    /// The BSDF `f(wo, wi)·|cos θ_i|` for a world direction.
+    pub fn bsdf_cos(&self, direction: Vec3) -> Vec3 {
+        let wi = self.frame.to_local(direction);
+        self.material.eval(self.wo, wi) * wi.z.abs()
+    }
+
+    /// The pdfs of drawing the world direction `direction`.
+    pub fn pdf(&self, direction: Vec3) -> MixturePdf {
+        let bsdf = self.material.pdf(self.wo, self.frame.to_local(direction));
+        // GUIDING (2): MIS and the estimator need the pdf of the whole mixture.
+        let guide = self.guide.as_ref().map_or(0.0, |g| g.pdf(direction));
+        MixturePdf {
+            mixture: self.a * guide + (1.0 - self.a) * bsdf,
+            bsdf,
+            guide,
+        }
+    }
+
+    /// Draws a direction: from the guide with probability `a`, else from the BSDF. `None` when
+    /// the BSDF draw fails (leaves the hemisphere).
+    pub fn sample(&self, rng: &mut Rng) -> Option<DirectionSample> {
+        let choice = rng.next_f32();
+        let lobe = rng.next_f32();
+        let u = rng.next_vec2();
+        let direction = match &self.guide {
+            Some(guide) if choice < self.a => guide.sample(u).0,
+            _ => {
+                let s = self.material.sample(self.wo, lobe, u)?;
+                self.frame.to_world(s.wi)
+            }
+        };
+        let pdf = self.pdf(direction);
+        (pdf.mixture > 0.0).then_some(DirectionSample { direction, pdf })
+    }
+}
+
+/// What one vertex of a path needs for recording into the field.
+#[derive(Clone, Copy, Debug, Default)]
+struct GuideVertex {
+    position: Vec3,
+    direction: Vec3,
+    pdf: f32,
+    bsdf_pdf: f32,
+    guide_pdf: f32,
+    bsdf_cos: Vec3,
+    /// Throughput from the radiance arriving at this vertex to the path's current end.
+    throughput: Vec3,
+    /// Radiance that arrived along `direction` so far.
+    radiance: Vec3,
+}
+
+/// The vertices of one path, on the stack.
+struct PathLog {
+    vertices: [GuideVertex; MAX_DEPTH],
+    len: usize,
+}
+
+impl PathLog {
+    fn new() -> Self {
+        PathLog {
+            vertices: [GuideVertex::default(); MAX_DEPTH],
+            len: 0,
+        }
+    }
+
+    /// Radiance `c` (before the current vertex's throughput) reached the path's end: it arrives
+    /// at every earlier vertex, scaled by what lies in between.
+    fn add(&mut self, c: Vec3) {
+        for v in &mut self.vertices[..self.len] {
+            v.radiance += v.throughput * c;
+        }
+    }
+
+    /// The path scattered with weight `factor` at its end: earlier vertices see through it.
+    fn scale(&mut self, factor: Vec3) {
+        for v in &mut self.vertices[..self.len] {
+            v.throughput *= factor;
+        }
+    }
+
+    fn push(&mut self, v: GuideVertex) {
+        self.vertices[self.len] = v;
+        self.len += 1;
+    }
+
+    /// GUIDING (4): records every vertex, once the path is finished.
+    fn record(&self, field: &GuidingField) {
+        for v in &self.vertices[..self.len] {
+            let sample = Sample::new(v.position, v.direction, luminance(v.radiance), v.pdf)
+                .with_mixture(luminance(v.radiance * v.bsdf_cos), v.bsdf_pdf, v.guide_pdf);
+            field.record(&sample);
+        }
+    }
+}
+
+/// MIS weight of a strategy with pdf `a` against one with pdf `b` (power heuristic, β = 2).
+fn power_heuristic(a: f32, b: f32) -> f32 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
+}
+
+/// The radiance arriving along `ray` (one path sample), guided when `guiding` is given.
+pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: &mut Rng) -> Vec3 {
+    let field = guiding.map(|g| g.field);
+    let mut log = PathLog::new();
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    // The pdf the current ray's direction was drawn with (None for the camera ray) and where.
+    let mut previous: Option<(Vec3, f32)> = None;
+    for depth in 0..=MAX_DEPTH {
+        let Some(hit) = scene.intersect(&ray) else {
+            break;
+        };
+        let wo = -ray.direction;
+        let emitted = scene.emitted(&hit, wo);
+        if emitted != Vec3::ZERO {
+            let weight = match previous {
+                None => 1.0,
+                Some((x, pdf)) => power_heuristic(pdf, scene.light_pdf(x, &hit, ray.direction)),
+            };
+            l += beta * emitted * weight;
+            log.add(emitted * weight);
+        }
+        if depth == MAX_DEPTH {
+            break;
+        }
+        let material = scene.material(&hit);
+        let normal = if hit.normal.dot(wo) >= 0.0 {
+            hit.normal
+        } else {
+            -hit.normal
+        };
+        let mut sampler = VertexSampler::new(hit.position, normal, wo, material, field);
+        if let Some(a) = guiding.and_then(|g| g.guide_probability) {
+            sampler = sampler.with_guide_probability(a);
+        }
+
+        // Next-event estimation, weighed against the mixture that would also find the light.
+        let (pick, u) = (rng.next_f32(), rng.next_vec2());
+        if let Some(light) = scene.sample_light(hit.position, pick, u) {
+            let f = sampler.bsdf_cos(light.direction);
+            if f != Vec3::ZERO {
+                let shadow = Ray::leaving(
+                    hit.position,
+                    hit.normal,
+                    light.direction,
+                    light.distance * (1.0 - 1e-4),
+                );
+                if !scene.occluded(&shadow) {
+                    let weight = power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
+                    let c = f * light.radiance * (weight / light.pdf);
+                    l += beta * c;
+                    log.add(c);
+                }
+            }
+        }
+
+        // Scatter.
+        let Some(s) = sampler.sample(rng) else {
+            break;
+        };
+        let f = sampler.bsdf_cos(s.direction);
+        let factor = f / s.pdf.mixture;
+        beta *= factor;
+        log.scale(factor);
+        if guiding.is_some_and(|g| g.record) {
+            // GUIDING (3): this vertex now waits for the radiance along `s.direction`. A guide
+            // direction below the surface (f = 0) ends the path, and is recorded too, with zero
+            // radiance: the field learns that nothing this vertex can use comes from there.
+            // Not recording it would leave those cells without samples, and a cell without
+            // samples borrows its parent's estimate (the field's shrinkage), which would keep
+            // sending half the guide's samples into the surface.
+            log.push(GuideVertex {
+                position: hit.position,
+                direction: s.direction,
+                pdf: s.pdf.mixture,
+                bsdf_pdf: s.pdf.bsdf,
+                guide_pdf: s.pdf.guide,
+                bsdf_cos: f,
+                throughput: Vec3::ONE,
+                radiance: Vec3::ZERO,
+            });
+        }
+        if f == Vec3::ZERO {
+            break;
+        }
+        if depth + 1 >= ROULETTE_DEPTH {
+            let survive = beta.max_element().min(0.95);
+            if rng.next_f32() >= survive {
+                break;
+            }
+            beta /= survive;
+            // The survivors' radiance is divided by the survival probability, for every
+            // vertex's estimate too (including the one just pushed), so they stay unbiased.
+            log.scale(Vec3::splat(1.0 / survive));
+        }
+        previous = Some((hit.position, s.pdf.mixture));
+        ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
+    }
+    if let Some(g) = guiding.filter(|g| g.record) {
+        log.record(g.field);
+    }
+    l
+}

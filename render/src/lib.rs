@@ -1,0 +1,22 @@
+//! The demo path tracer of sdguide: a small, real, multi-threaded renderer that uses the library
+//! exactly as a user would, and shows what guiding buys at equal time.
+//!
+//! The flow: a [`scene::Scene`] (built in code, [`scenes`]) is rendered by
+//! [`render::render`] in passes of tiles; every path is traced by [`integrator::radiance`],
+//! which is the reference for wiring sdguide into a path tracer. Images are compared with
+//! [`image::Image::rel_mse`] against a stored reference ([`reference`](mod@reference)). The
+//! `render` binary runs the comparison (see `docs/render.md`).
+
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod bvh;
+pub mod geometry;
+pub mod image;
+pub mod integrator;
+pub mod material;
+pub mod reference;
+pub mod render;
+pub mod rng;
+pub mod scene;
+pub mod scenes;

@@ -1,0 +1,256 @@
+//! Rendering: passes over the image in tiles with rayon, and the three methods compared at equal
+//! time — unguided path tracing, and guided path tracing that first trains its field (training
+//! time counts against the budget).
+
+use crate::image::Image;
+use crate::integrator::{Guiding, radiance};
+use crate::rng::{Rng, stream_id};
+use crate::scene::Scene;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule};
+use std::time::{Duration, Instant};
+
+/// Tile edge, pixels.
+const TILE: usize = 16;
+
+/// Renders `spp` samples per pixel into `sum` (added, not averaged), pass `pass` of a render
+/// seeded by `seed`. With `guiding`, paths sample the field (and record into it if asked).
+pub fn render_pass(
+    scene: &Scene,
+    guiding: Option<Guiding<'_>>,
+    sum: &mut Image,
+    spp: u32,
+    seed: u64,
+    pass: u64,
+) {
+    let (width, height) = (sum.width, sum.height);
+    let aspect = width as f32 / height as f32;
+    let tiles: Vec<(usize, usize)> = (0..height.div_ceil(TILE))
+        .flat_map(|ty| (0..width.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let rendered: Vec<Vec<Vec3>> = tiles
+        .par_iter()
+        .map(|&(x0, y0)| {
+            let mut out = Vec::with_capacity(TILE * TILE);
+            for y in y0..(y0 + TILE).min(height) {
+                for x in x0..(x0 + TILE).min(width) {
+                    let pixel = (y * width + x) as u64;
+                    let mut rng = Rng::new(seed, stream_id(&[pass, pixel]));
+                    let mut c = Vec3::ZERO;
+                    for _ in 0..spp {
+                        let film = (Vec2::new(x as f32, y as f32) + rng.next_vec2())
+                            / Vec2::new(width as f32, height as f32);
+                        let l = radiance(scene, guiding, scene.camera.ray(film, aspect), &mut rng);
+                        // A NaN or infinite path would poison the pixel; none should occur, and
+                        // a debug build says so.
+                        debug_assert!(l.is_finite(), "non-finite radiance {l}");
+                        if l.is_finite() {
+                            c += l;
+                        }
+                    }
+                    out.push(c);
+                }
+            }
+            out
+        })
+        .collect();
+    for (&(x0, y0), tile) in tiles.iter().zip(rendered) {
+        let mut values = tile.into_iter();
+        for y in y0..(y0 + TILE).min(height) {
+            for x in x0..(x0 + TILE).min(width) {
+                sum.pixels[y * width + x] += values.next().unwrap_or_default();
+            }
+        }
+    }
+}
+
+/// A rendering method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Path tracing with BSDF sampling and next-event estimation.
+    Unguided,
+    /// Path guiding with the given leaf rule.
+    Guided(LeafRule),
+}
+
+impl Method {
+    /// The method's name in reports and file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Unguided => "unguided",
+            Method::Guided(LeafRule::L1) => "guided-l1",
+            Method::Guided(LeafRule::L2) => "guided-l2",
+        }
+    }
+}
+
+/// How long a method may run.
+#[derive(Clone, Copy, Debug)]
+pub struct Budget {
+    /// Wall-clock budget, training included (`None`: unlimited, then `spp` must be set).
+    pub time: Option<Duration>,
+    /// Cap on the final render's samples per pixel.
+    pub spp: Option<u32>,
+    /// Share of the time budget training may use (guided methods).
+    pub training_share: f32,
+    /// Training passes when there is no time budget (samples 1, 2, 4, …).
+    pub training_iterations: u32,
+}
+
+impl Default for Budget {
+    fn default() -> Self {
+        Budget {
+            time: Some(Duration::from_secs(40)),
+            spp: None,
+            training_share: 0.3,
+            training_iterations: 7,
+        }
+    }
+}
+
+/// What a method produced.
+pub struct Outcome {
+    /// The method.
+    pub method: Method,
+    /// The final image (average of the final render's samples).
+    pub image: Image,
+    /// Samples per pixel of the final render.
+    pub spp: u32,
+    /// Samples per pixel spent on training.
+    pub training_spp: u32,
+    /// Time spent training (zero for unguided or a reused cache).
+    pub training_time: Duration,
+    /// Total wall-clock time.
+    pub total_time: Duration,
+    /// The trained field, for guided methods.
+    pub field: Option<GuidingField>,
+}
+
+/// Called after every pass with (phase, fraction of the budget used, samples per pixel so far).
+pub type Progress<'a> = &'a (dyn Fn(&str, f32, u32) + Sync);
+
+/// The guiding field's bounds for a scene: its bounding box, slightly enlarged.
+pub fn field_bounds(scene: &Scene) -> Aabb {
+    let (lo, hi) = scene.bounds();
+    let pad = (hi - lo) * 0.01 + Vec3::splat(1e-3);
+    Aabb::new(lo - pad, hi + pad)
+}
+
+/// How a guided method gets its field.
+pub struct Training<'a> {
+    /// The configuration of a newly trained field (its `rule` is the method's).
+    pub config: &'a GuidingConfig,
+    /// A trained field to use instead of training one.
+    pub cache: Option<GuidingField>,
+    /// A fixed probability of sampling the guide instead of the BSDF; `None` uses the field's
+    /// learned one.
+    pub guide_probability: Option<f32>,
+}
+
+/// Renders `scene` with `method` at `width × height` within `budget`. A guided method trains a
+/// new field — passes of 1, 2, 4, … samples per pixel, each followed by `refine`, while the
+/// next pass still fits in the training share — unless `guiding` brings a trained one; then it
+/// renders with the field frozen until the budget is spent.
+pub fn render(
+    scene: &Scene,
+    method: Method,
+    (width, height): (usize, usize),
+    budget: Budget,
+    seed: u64,
+    guiding: Training<'_>,
+    progress: Progress<'_>,
+) -> Result<Outcome, sdguide::ConfigError> {
+    let start = Instant::now();
+    let fraction = |spp: u32| match (budget.time, budget.spp) {
+        (Some(t), _) => start.elapsed().as_secs_f32() / t.as_secs_f32(),
+        (None, Some(n)) => spp as f32 / n as f32,
+        (None, None) => 1.0,
+    };
+    let mut field = None;
+    let mut training_spp = 0;
+    let mut training_time = Duration::ZERO;
+    if let Method::Guided(rule) = method {
+        if let Some(cached) = guiding.cache {
+            field = Some(cached);
+        } else {
+            let config = GuidingConfig {
+                rule,
+                ..guiding.config.clone()
+            };
+            let mut trained = GuidingField::new(field_bounds(scene), config)?;
+            let mut scratch = Image::new(width, height);
+            let mut last = Duration::ZERO;
+            // With a time budget, passes continue while the next one — twice the samples, so
+            // about twice the time — still fits in the training share (at most 2¹⁶ − 1 spp).
+            let passes = if budget.time.is_some() {
+                16
+            } else {
+                budget.training_iterations
+            };
+            for iteration in 0..passes {
+                if let Some(t) = budget.time
+                    && start.elapsed() + 2 * last > t.mul_f32(budget.training_share)
+                {
+                    break;
+                }
+                let began = Instant::now();
+                let spp = 1 << iteration;
+                let guiding = Guiding {
+                    field: &trained,
+                    record: true,
+                    guide_probability: guiding.guide_probability,
+                };
+                render_pass(
+                    scene,
+                    Some(guiding),
+                    &mut scratch,
+                    spp,
+                    seed,
+                    (1 << 40) + iteration as u64,
+                );
+                trained.refine();
+                training_spp += spp;
+                last = began.elapsed();
+                progress(
+                    &format!("training, pass {}", iteration + 1),
+                    fraction(0),
+                    training_spp,
+                );
+            }
+            training_time = start.elapsed();
+            field = Some(trained);
+        }
+    }
+    let mut sum = Image::new(width, height);
+    let mut spp = 0u32;
+    let guiding = field.as_ref().map(|f| Guiding {
+        field: f,
+        record: false,
+        guide_probability: guiding.guide_probability,
+    });
+    loop {
+        let done = match (budget.time, budget.spp) {
+            (Some(t), cap) => start.elapsed() >= t || cap.is_some_and(|n| spp >= n),
+            (None, Some(n)) => spp >= n,
+            (None, None) => true,
+        };
+        if done {
+            break;
+        }
+        render_pass(scene, guiding, &mut sum, 1, seed, spp as u64);
+        spp += 1;
+        progress("rendering", fraction(spp), spp);
+    }
+    let scale = 1.0 / spp.max(1) as f32;
+    sum.pixels.iter_mut().for_each(|p| *p *= scale);
+    Ok(Outcome {
+        method,
+        image: sum,
+        spp,
+        training_spp,
+        training_time,
+        total_time: start.elapsed(),
+        field,
+    })
+}

@@ -1,0 +1,129 @@
+//! The built-in scenes, made in code.
+
+use crate::material::Material;
+use crate::scene::{Camera, Scene, SceneBuilder};
+use glam::Vec3;
+
+/// "Door ajar": a room lit only through a door left ajar to a second room, where a ceiling light
+/// shines. Most of the camera room sees the light only after two or more bounces through the
+/// gap, which unguided path tracing finds by chance; the floor is glossy.
+///
+/// Camera room `x ∈ [0, 4]`, light room `x ∈ [4, 7]`, `y ∈ [0, 2.5]`, `z ∈ [0, 5]`, metres. The
+/// doorway is `z ∈ [2, 3]`, 2.1 m high; the door is hinged at `z = 2` and opened 12° into the
+/// light room.
+pub fn door() -> Scene {
+    let mut b = SceneBuilder::default();
+    let wall = b.material(Material::diffuse(Vec3::new(0.72, 0.70, 0.66)));
+    let floor = b.material(Material::glossy(
+        Vec3::new(0.30, 0.22, 0.16),
+        Vec3::splat(0.35),
+        0.12,
+    ));
+    let light_room_floor = b.material(Material::diffuse(Vec3::splat(0.55)));
+    let door = b.material(Material::diffuse(Vec3::new(0.45, 0.32, 0.22)));
+    let metal = b.material(Material::glossy(
+        Vec3::splat(0.02),
+        Vec3::new(0.90, 0.78, 0.55),
+        0.18,
+    ));
+    let red = b.material(Material::diffuse(Vec3::new(0.62, 0.12, 0.10)));
+    let blue = b.material(Material::glossy(
+        Vec3::new(0.08, 0.14, 0.45),
+        Vec3::splat(0.2),
+        0.3,
+    ));
+    let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::new(600.0, 540.0, 450.0)));
+
+    let (w, h, d) = (7.0, 2.5, 5.0);
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    // Floors, ceiling, outer walls.
+    b.quad(Vec3::ZERO, x * 4.0, z * d, floor)
+        .quad(x * 4.0, x * 3.0, z * d, light_room_floor)
+        .quad(y * h, x * w, z * d, wall)
+        .quad(Vec3::ZERO, y * h, z * d, wall)
+        .quad(x * w, y * h, z * d, wall)
+        .quad(Vec3::ZERO, x * w, y * h, wall)
+        .quad(z * d, x * w, y * h, wall);
+    // The dividing wall at x = 4, with the doorway z ∈ [2, 3], y ∈ [0, 2.1].
+    let door_height = 2.1;
+    b.quad(x * 4.0, y * h, z * 2.0, wall)
+        .quad(x * 4.0 + z * 3.0, y * h, z * 2.0, wall)
+        .quad(
+            x * 4.0 + z * 2.0 + y * door_height,
+            y * (h - door_height),
+            z,
+            wall,
+        );
+    // The door, hinged at z = 2, swung 12° into the light room.
+    let angle = 12f32.to_radians();
+    let leaf = Vec3::new(angle.sin(), 0.0, angle.cos()) * 0.98;
+    b.quad(x * 4.0 + z * 2.0, leaf, y * door_height, door);
+    // The light: a 1 m² panel under the light room's ceiling, facing down.
+    b.quad(Vec3::new(5.6, h - 0.01, 3.4), x, z, light);
+    // Furniture in the camera room.
+    b.sphere(Vec3::new(2.2, 0.55, 2.4), 0.55, metal)
+        .cuboid(
+            Vec3::new(0.5, 0.0, 3.3),
+            Vec3::new(1.4, 0.9, 4.4),
+            false,
+            red,
+        )
+        .sphere(Vec3::new(3.2, 0.3, 1.2), 0.3, blue);
+    let camera = Camera {
+        eye: Vec3::new(0.35, 1.5, 0.35),
+        target: Vec3::new(3.6, 0.7, 2.9),
+        fov_degrees: 62.0,
+    };
+    b.build("door", camera, 1.0)
+}
+
+/// "Glossy box": a Cornell-style box with a glossy floor and two glossy spheres of different
+/// roughness, lit by a small (0.15 m square) ceiling light. Open at the front.
+pub fn glossy_box() -> Scene {
+    let mut b = SceneBuilder::default();
+    let white = b.material(Material::diffuse(Vec3::splat(0.73)));
+    let red = b.material(Material::diffuse(Vec3::new(0.63, 0.07, 0.05)));
+    let green = b.material(Material::diffuse(Vec3::new(0.12, 0.45, 0.09)));
+    let floor = b.material(Material::glossy(Vec3::splat(0.35), Vec3::splat(0.4), 0.1));
+    let gold = b.material(Material::glossy(
+        Vec3::splat(0.02),
+        Vec3::new(0.95, 0.75, 0.35),
+        0.06,
+    ));
+    let plastic = b.material(Material::glossy(
+        Vec3::new(0.1, 0.2, 0.5),
+        Vec3::splat(0.25),
+        0.35,
+    ));
+    let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::splat(60.0)));
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    b.quad(Vec3::ZERO, x, z, floor)
+        .quad(y, x, z, white)
+        .quad(z, x, y, white)
+        .quad(Vec3::ZERO, y, z, red)
+        .quad(x, y, z, green)
+        .quad(Vec3::new(0.425, 0.999, 0.425), x * 0.15, z * 0.15, light)
+        .sphere(Vec3::new(0.3, 0.2, 0.6), 0.2, gold)
+        .sphere(Vec3::new(0.72, 0.16, 0.35), 0.16, plastic);
+    let camera = Camera {
+        eye: Vec3::new(0.5, 0.5, -1.25),
+        target: Vec3::new(0.5, 0.45, 0.5),
+        fov_degrees: 40.0,
+    };
+    b.build("glossy-box", camera, 1.0)
+}
+
+/// The white furnace: the inside of a closed cube whose every face emits `emission` and
+/// reflects diffusely with `albedo`. The radiance is the same everywhere and in every direction,
+/// `L = emission / (1 − albedo)`, whatever the estimator, so a render must converge to it.
+pub fn furnace(albedo: f32, emission: f32) -> Scene {
+    let mut b = SceneBuilder::default();
+    let m = b.material(Material::diffuse(Vec3::splat(albedo)).emitting(Vec3::splat(emission)));
+    b.cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), true, m);
+    let camera = Camera {
+        eye: Vec3::new(0.1, 0.2, -0.3),
+        target: Vec3::new(0.4, 0.1, 1.0),
+        fov_degrees: 70.0,
+    };
+    b.build("furnace", camera, 1.0)
+}

@@ -1,0 +1,143 @@
+//! The scene machinery: the BVH finds what a linear scan finds, the light sampler's pdf is the
+//! one MIS uses for emitters hit by scattered rays, and stored references are refused when they
+//! do not match the scene.
+
+use glam::Vec3;
+use sdguide_render::geometry::{Ray, T_MIN};
+use sdguide_render::image::Image;
+use sdguide_render::reference::{self, ReferenceError};
+use sdguide_render::rng::Rng;
+use sdguide_render::scenes::{door, furnace, glossy_box};
+
+fn random_direction(rng: &mut Rng) -> Vec3 {
+    let u = rng.next_vec2();
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = std::f32::consts::TAU * u.y;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+#[test]
+fn bvh_finds_the_closest_hit_of_a_linear_scan() {
+    for scene in [door(), glossy_box()] {
+        let (lo, hi) = scene.bounds();
+        let mut rng = Rng::new(1, 2);
+        let mut hits = 0;
+        for _ in 0..20_000 {
+            let o = lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let ray = Ray {
+                origin: o,
+                direction: random_direction(&mut rng),
+                t_max: f32::INFINITY,
+            };
+            let linear = scene
+                .shapes
+                .iter()
+                .enumerate()
+                .filter_map(|(i, s)| s.intersect(&ray).map(|t| (t, i as u32)))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let bvh = scene.intersect(&ray).map(|h| (h.t, h.shape));
+            assert_eq!(bvh.map(|h| h.0), linear.map(|h| h.0), "{ray:?}");
+            if let Some((t, _)) = linear {
+                hits += 1;
+                let shadow = Ray {
+                    t_max: t * 0.999,
+                    ..ray
+                };
+                assert!(!scene.occluded(&shadow) || t * 0.999 <= T_MIN);
+                assert!(scene.occluded(&Ray {
+                    t_max: t * 1.001,
+                    ..ray
+                }));
+            }
+        }
+        assert!(hits > 10_000, "{hits}");
+    }
+}
+
+#[test]
+fn light_sampling_pdf_is_the_pdf_mis_uses_for_hit_emitters() {
+    for scene in [door(), glossy_box(), furnace(0.5, 1.0)] {
+        let mut rng = Rng::new(4, 5);
+        let x = {
+            let (lo, hi) = scene.bounds();
+            (lo + hi) * 0.5 + Vec3::new(0.1, -0.2, 0.05)
+        };
+        let mut checked = 0;
+        for _ in 0..2000 {
+            let Some(light) = scene.sample_light(x, rng.next_f32(), rng.next_vec2()) else {
+                continue;
+            };
+            let ray = Ray {
+                origin: x,
+                direction: light.direction,
+                t_max: light.distance * 1.001,
+            };
+            // Where the sampled point is visible, the ray toward it hits it, and the pdf MIS
+            // computes from that hit is the sampler's.
+            if let Some(hit) = scene.intersect(&ray)
+                && (hit.t - light.distance).abs() < 1e-3 * light.distance
+            {
+                let pdf = scene.light_pdf(x, &hit, light.direction);
+                assert!(
+                    (pdf - light.pdf).abs() <= 1e-3 * light.pdf,
+                    "{pdf} vs {}",
+                    light.pdf
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 100, "{}: {checked}", scene.name);
+    }
+}
+
+#[test]
+fn light_sampling_covers_the_emitters_solid_angle() {
+    // E[1/p] over light samples = the solid angle of the visible emitting area (all emitters
+    // face the point): here, the inside of the furnace cube, seen from its centre, is 4π.
+    let scene = furnace(0.5, 1.0);
+    let mut rng = Rng::new(8, 9);
+    let n = 400_000;
+    let (mut s1, mut s2) = (0f64, 0f64);
+    for _ in 0..n {
+        let l = scene
+            .sample_light(Vec3::ZERO, rng.next_f32(), rng.next_vec2())
+            .unwrap();
+        let w = 1.0 / l.pdf as f64;
+        s1 += w;
+        s2 += w * w;
+    }
+    let mean = s1 / n as f64;
+    let se = ((s2 / n as f64 - mean * mean) / n as f64).sqrt();
+    let four_pi = 4.0 * std::f64::consts::PI;
+    assert!((mean - four_pi).abs() < 5.0 * se, "{mean} ± {se}");
+}
+
+#[test]
+fn references_are_checked_against_the_scene() {
+    let dir = std::env::temp_dir().join(format!("sdguide-render-ref-{}", std::process::id()));
+    let scene = furnace(0.5, 1.0);
+    let mut image = Image::new(8, 6);
+    image.pixels[5] = Vec3::new(1.0, 2.0, 3.0);
+    reference::store(&dir, &scene, &image, 16, "render --reference").unwrap();
+    let (loaded, description) = reference::load(&dir, &scene, 8, 6).unwrap();
+    assert_eq!(loaded, image);
+    assert_eq!(description.spp, 16);
+    assert_eq!(loaded.rel_mse(&image), 0.0);
+    // Another resolution, another scene description, no reference at all.
+    assert!(matches!(
+        reference::load(&dir, &scene, 16, 12),
+        Err(ReferenceError::Mismatch(_))
+    ));
+    let mut other = furnace(0.6, 1.0);
+    other.name = scene.name.clone();
+    assert!(matches!(
+        reference::load(&dir, &other, 8, 6),
+        Err(ReferenceError::Mismatch(_))
+    ));
+    assert!(matches!(
+        reference::load(&dir, &door(), 8, 6),
+        Err(ReferenceError::Missing(_))
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
