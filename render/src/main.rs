@@ -178,10 +178,10 @@ fn run() -> Result<(), String> {
         Scene::NAMES
     ))?;
     let command_line: Vec<String> = std::env::args().skip(1).collect();
-    let command = format!(
-        "cargo run --release -p sdguide-render -- {}",
-        command_line.join(" ")
-    );
+    let mut command = "cargo run --release -p sdguide-render".to_string();
+    if !command_line.is_empty() {
+        command = format!("{command} -- {}", command_line.join(" "));
+    }
 
     if args.make_reference {
         let outcome = run_method(&scene, Method::Guided(LeafRule::L2), &args, None)?;
@@ -206,7 +206,7 @@ fn run() -> Result<(), String> {
 
     let reference = match reference::load(&reference::directory(), &scene, args.width, args.height)
     {
-        Ok((image, description)) => Some((image, description)),
+        Ok(found) => Some(found),
         Err(e) => {
             eprintln!("render: {e}; errors will not be reported");
             None
