@@ -153,10 +153,15 @@ impl Bvh {
 }
 
 /// Whether the ray `origin + t·d` (with `inv = 1/d`) meets the box for some `t` in `[0, t_max]`.
+///
+/// Conservative under rounding: the far distance is widened by `2γ₃` (pbrt's bound on the error
+/// of the slab distances), so a box whose true entry lies at or before `t_max` is never culled —
+/// without it, a hit one ulp closer on a flat box (a floor triangle) can be missed.
 fn slab(lo: Vec3, hi: Vec3, origin: Vec3, inv: Vec3, t_max: f32) -> bool {
+    const GAMMA_3: f32 = 3.0 * f32::EPSILON * 0.5 / (1.0 - 3.0 * f32::EPSILON * 0.5);
     let t0 = (lo - origin) * inv;
     let t1 = (hi - origin) * inv;
     let near = t0.min(t1).max_element().max(0.0);
-    let far = t0.max(t1).min_element().min(t_max);
+    let far = t0.max(t1).min_element().min(t_max) * (1.0 + 2.0 * GAMMA_3);
     near <= far
 }

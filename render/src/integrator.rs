@@ -17,9 +17,9 @@
 
 use crate::geometry::{Frame, Ray};
 use crate::material::{Material, luminance};
-use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::Vec3;
+use sdguide::synthetic::Rng;
 use sdguide::{DirectionalDistribution, GuidingField, Sample};
 
 /// Longest path, in scattering events.

@@ -17,6 +17,5 @@ pub mod integrator;
 pub mod material;
 pub mod reference;
 pub mod render;
-pub mod rng;
 pub mod scene;
 pub mod scenes;

@@ -4,15 +4,18 @@
 
 use crate::image::Image;
 use crate::integrator::{Guiding, radiance};
-use crate::rng::{Rng, stream_id};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use sdguide::synthetic::Rng;
 use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule};
 use std::time::{Duration, Instant};
 
 /// Tile edge, pixels.
 const TILE: usize = 16;
+
+/// Pass numbers at and above this are training passes (the final render counts from 0).
+const TRAINING_PASS: u32 = 1 << 31;
 
 /// Renders `spp` samples per pixel into `sum` (added, not averaged), pass `pass` of a render
 /// seeded by `seed`. With `guiding`, paths sample the field (and record into it if asked).
@@ -22,10 +25,14 @@ pub fn render_pass(
     sum: &mut Image,
     spp: u32,
     seed: u64,
-    pass: u64,
+    pass: u32,
 ) {
     let (width, height) = (sum.width, sum.height);
     let aspect = width as f32 / height as f32;
+    // One random stream per pixel and pass: the key `pass·2³² + pixel`, salted by the seed.
+    // Salting with a pseudo-random function of the seed (not the seed itself) keeps renders with
+    // different seeds independent; a render does not depend on how tiles meet threads.
+    let salt = Rng::new(seed).next_u64();
     let tiles: Vec<(usize, usize)> = (0..height.div_ceil(TILE))
         .flat_map(|ty| (0..width.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
@@ -36,7 +43,7 @@ pub fn render_pass(
             for y in y0..(y0 + TILE).min(height) {
                 for x in x0..(x0 + TILE).min(width) {
                     let pixel = (y * width + x) as u64;
-                    let mut rng = Rng::new(seed, stream_id(&[pass, pixel]));
+                    let mut rng = Rng::new(salt ^ ((pass as u64) << 32 | pixel));
                     let mut c = Vec3::ZERO;
                     for _ in 0..spp {
                         let film = (Vec2::new(x as f32, y as f32) + rng.next_vec2())
@@ -207,7 +214,8 @@ pub fn render(
                     &mut scratch,
                     spp,
                     seed,
-                    (1 << 40) + iteration as u64,
+                    // Training passes draw from streams of their own.
+                    TRAINING_PASS | iteration,
                 );
                 trained.refine();
                 training_spp += spp;
@@ -238,7 +246,7 @@ pub fn render(
         if done {
             break;
         }
-        render_pass(scene, guiding, &mut sum, 1, seed, spp as u64);
+        render_pass(scene, guiding, &mut sum, 1, seed, spp);
         spp += 1;
         progress("rendering", fraction(spp), spp);
     }

@@ -4,12 +4,12 @@
 //! at vertices of a trained field, with a 5σ bound from the sample variance.
 
 use glam::Vec3;
+use sdguide::synthetic::Rng;
 use sdguide::{GuidingConfig, GuidingField};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::{Guiding, VertexSampler};
 use sdguide_render::material::Material;
 use sdguide_render::render::{field_bounds, render_pass};
-use sdguide_render::rng::Rng;
 use sdguide_render::scenes::door;
 use std::f64::consts::PI;
 
@@ -29,7 +29,7 @@ fn bin(d: Vec3) -> usize {
 fn check_sampler(sampler: &VertexSampler<'_>, upper_only: bool, n: usize, seed: u64) {
     let bins = Z_BINS * PHI_BINS;
     let (mut sum, mut sum2) = (vec![0f64; bins], vec![0f64; bins]);
-    let mut rng = Rng::new(seed, 1);
+    let mut rng = Rng::new(seed);
     let mut drawn = 0;
     for _ in 0..n {
         let Some(s) = sampler.sample(&mut rng) else {
