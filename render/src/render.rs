@@ -72,6 +72,36 @@ pub fn render_pass(
     }
 }
 
+/// One training pass: renders `spp` samples per pixel at `size`, recording every path into
+/// `field` (the image is discarded), then refines the field. Training passes draw from random
+/// streams of their own, numbered by `iteration`; `guide_probability` fixes the guide's share
+/// (`None`: the field's learned one).
+pub fn training_pass(
+    scene: &Scene,
+    field: &mut GuidingField,
+    (width, height): (usize, usize),
+    spp: u32,
+    seed: u64,
+    iteration: u32,
+    guide_probability: Option<f32>,
+) {
+    let guiding = Guiding {
+        field,
+        record: true,
+        guide_probability,
+    };
+    let mut scratch = Image::new(width, height);
+    render_pass(
+        scene,
+        Some(guiding),
+        &mut scratch,
+        spp,
+        seed,
+        TRAINING_PASS | iteration,
+    );
+    field.refine();
+}
+
 /// A rendering method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
@@ -186,7 +216,6 @@ pub fn render(
                 ..guiding.config.clone()
             };
             let mut trained = GuidingField::new(field_bounds(scene), config)?;
-            let mut scratch = Image::new(width, height);
             let mut last = Duration::ZERO;
             // With a time budget, passes continue while the next one — twice the samples, so
             // about twice the time — still fits in the training share (at most 2¹⁶ − 1 spp).
@@ -203,21 +232,15 @@ pub fn render(
                 }
                 let began = Instant::now();
                 let spp = 1 << iteration;
-                let guiding = Guiding {
-                    field: &trained,
-                    record: true,
-                    guide_probability: guiding.guide_probability,
-                };
-                render_pass(
+                training_pass(
                     scene,
-                    Some(guiding),
-                    &mut scratch,
+                    &mut trained,
+                    (width, height),
                     spp,
                     seed,
-                    // Training passes draw from streams of their own.
-                    TRAINING_PASS | iteration,
+                    iteration,
+                    guiding.guide_probability,
                 );
-                trained.refine();
                 training_spp += spp;
                 last = began.elapsed();
                 progress(

@@ -252,8 +252,7 @@ impl Scene {
         let distance2 = d.length_squared();
         let distance = distance2.sqrt();
         let direction = d / distance;
-        let n = e1.cross(e2).normalize();
-        let cos_light = -n.dot(direction);
+        let cos_light = -self.shapes[index].normal(p).dot(direction);
         if cos_light <= 0.0 || distance2 <= 0.0 {
             return None;
         }

@@ -7,7 +7,7 @@
 use sdguide::{GuidingConfig, GuidingField, LeafRule};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::Guiding;
-use sdguide_render::render::{field_bounds, render_pass};
+use sdguide_render::render::{field_bounds, render_pass, training_pass};
 use sdguide_render::scenes::furnace;
 
 const ALBEDO: f32 = 0.3;
@@ -71,22 +71,8 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
             ..GuidingConfig::default()
         };
         let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-        let mut scratch = Image::new(SIZE.0, SIZE.1);
         for pass in 0..5 {
-            let guiding = Guiding {
-                field: &field,
-                record: true,
-                guide_probability: None,
-            };
-            render_pass(
-                &scene,
-                Some(guiding),
-                &mut scratch,
-                1 << pass,
-                3,
-                100 + pass,
-            );
-            field.refine();
+            training_pass(&scene, &mut field, SIZE, 1 << pass, 3, pass, None);
         }
         let stats = field.stats();
         assert_eq!(stats.rejected.total(), 0, "{stats:?}");

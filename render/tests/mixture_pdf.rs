@@ -6,10 +6,9 @@
 use glam::Vec3;
 use sdguide::synthetic::Rng;
 use sdguide::{GuidingConfig, GuidingField};
-use sdguide_render::image::Image;
-use sdguide_render::integrator::{Guiding, VertexSampler};
+use sdguide_render::integrator::VertexSampler;
 use sdguide_render::material::Material;
-use sdguide_render::render::{field_bounds, render_pass};
+use sdguide_render::render::{field_bounds, training_pass};
 use sdguide_render::scenes::door;
 use std::f64::consts::PI;
 
@@ -79,15 +78,8 @@ fn bsdf_sampling_pdf_matches_its_draws() {
 fn guided_mixture_pdf_matches_its_draws() {
     let scene = door();
     let mut field = GuidingField::new(field_bounds(&scene), GuidingConfig::default()).unwrap();
-    let mut scratch = Image::new(48, 36);
     for pass in 0..4 {
-        let guiding = Guiding {
-            field: &field,
-            record: true,
-            guide_probability: None,
-        };
-        render_pass(&scene, Some(guiding), &mut scratch, 2 << pass, 11, pass);
-        field.refine();
+        training_pass(&scene, &mut field, (48, 36), 2 << pass, 11, pass, None);
     }
     let floor = Material::glossy(Vec3::splat(0.3), Vec3::splat(0.35), 0.12);
     let wall = Material::diffuse(Vec3::splat(0.7));
