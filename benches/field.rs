@@ -15,7 +15,7 @@
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
 use sdguide::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
-use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Sample, SpatialFilter};
+use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Refinement, Sample, SpatialFilter};
 use std::hint::black_box;
 use std::sync::OnceLock;
 
@@ -72,28 +72,39 @@ fn bench_record(c: &mut Criterion) {
     g.bench_function("1-thread", |b| {
         b.iter(|| field.record_all(black_box(&batch)))
     });
-    // The filters and the mixture terms, each on a field trained with that configuration
-    // (the default is the directional box filter).
-    for (name, spatial, directional) in [
+    // The filters, the refinement criterion and the mixture terms, each on a field trained with
+    // that configuration (the default is the directional box filter, refined by variance gain).
+    let gain = Refinement::VarianceGain;
+    for (name, spatial, directional, refinement) in [
         (
             "1-thread, no filter",
             SpatialFilter::Nearest,
             DirectionalFilter::Nearest,
+            gain,
         ),
         (
             "1-thread, stochastic spatial",
             SpatialFilter::Stochastic,
             DirectionalFilter::Box,
+            gain,
         ),
         (
             "1-thread, box spatial",
             SpatialFilter::Box,
             DirectionalFilter::Box,
+            gain,
+        ),
+        (
+            "1-thread, refined by flux share",
+            SpatialFilter::Nearest,
+            DirectionalFilter::Box,
+            Refinement::FluxShare,
         ),
     ] {
         let variant = trained_with(GuidingConfig {
             spatial_filter: spatial,
             directional_filter: directional,
+            refinement,
             ..GuidingConfig::default()
         });
         let batch = samples(&variant);
@@ -198,24 +209,33 @@ fn bench_baseline(c: &mut Criterion) {
 }
 
 fn bench_refine(c: &mut Criterion) {
-    let field = trained().clone();
-    // One iteration's worth of samples at the trained state, then refine a fresh copy each time.
-    let w = workload();
-    let k = field.iteration();
-    w.record_iteration(&field, k, 1_000_000);
-    let leaves = field.stats().spatial_leaves;
     let mut g = c.benchmark_group("refine");
     g.sample_size(20);
-    g.bench_function(format!("{leaves}-leaves/1-thread"), |b| {
-        b.iter_batched(
-            || field.clone(),
-            |mut f| one_thread(move || f.refine()),
-            BatchSize::LargeInput,
-        )
-    });
-    g.bench_function(format!("{leaves}-leaves/2-threads"), |b| {
-        b.iter_batched(|| field.clone(), |mut f| f.refine(), BatchSize::LargeInput)
-    });
+    let flux = GuidingConfig {
+        refinement: Refinement::FluxShare,
+        ..GuidingConfig::default()
+    };
+    for (criterion, field) in [
+        ("", trained().clone()),
+        (", flux share", trained_with(flux)),
+    ] {
+        // One iteration's worth of samples at the trained state, then refine a fresh copy each
+        // time.
+        let w = workload();
+        let k = field.iteration();
+        w.record_iteration(&field, k, 1_000_000);
+        let leaves = field.stats().spatial_leaves;
+        g.bench_function(format!("{leaves}-leaves/1-thread{criterion}"), |b| {
+            b.iter_batched(
+                || field.clone(),
+                |mut f| one_thread(move || f.refine()),
+                BatchSize::LargeInput,
+            )
+        });
+        g.bench_function(format!("{leaves}-leaves/2-threads{criterion}"), |b| {
+            b.iter_batched(|| field.clone(), |mut f| f.refine(), BatchSize::LargeInput)
+        });
+    }
     g.finish();
 }
 

@@ -3,8 +3,10 @@
 //! 1. Relative variance of uniform sampling, of fields trained with the `L1` and `L2` rules, and
 //!    of the oracle (the best piecewise-constant density on the learned partition), on every
 //!    light field of the harness; a PNG plot of relvar against the training budget.
-//! 2. The filters' effect on relvar.
-//! 3. The guide-vs-BSDF mixture: relvar with the fixed selection probability ½, with the learned
+//! 2. Refinement: flux share against variance gain, at equal node counts (a node budget per
+//!    directional tree that both reach) and at the default thresholds.
+//! 3. The filters' effect on relvar.
+//! 4. The guide-vs-BSDF mixture: relvar with the fixed selection probability ½, with the learned
 //!    one, and with the best one (brute force).
 //!
 //! ```text
@@ -12,7 +14,7 @@
 //! ```
 
 use sdguide::quality::{self, Budget, Holdout, Report, TestField};
-use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, SpatialFilter};
+use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement, SpatialFilter};
 use std::time::Instant;
 
 #[path = "common/plot.rs"]
@@ -97,6 +99,8 @@ fn main() {
     plot::write_png(&plot_path, &panels).expect("can write the plot");
     println!("\nplot: {plot_path}\n");
 
+    refinement_tables(budget);
+
     println!("## Filters (L2)\n");
     println!("| spatial | directional | {} | training |", field_names());
     println!("|---|---|---|---|---|---|---|");
@@ -148,6 +152,74 @@ fn main() {
             s.probability
         );
     }
+}
+
+/// Flux share against variance gain: at equal node counts, and at the default thresholds.
+fn refinement_tables(budget: Budget) {
+    println!("## Refinement (L2)\n");
+    println!(
+        "Equal node counts: both criteria split as much as a budget of interior nodes per directional tree allows.\n"
+    );
+    println!(
+        "| light field | nodes per tree | leaves | flux share | variance gain | gain / flux | oracle, flux partition | oracle, gain partition | L2 / oracle, gain |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let run = |field: &TestField, config: GuidingConfig| {
+        let (r, seconds) = train(field, config, budget);
+        (r.last().unwrap().1, seconds)
+    };
+    for field in TestField::all() {
+        for nodes in [30, 60, 120] {
+            let capped = |refinement| GuidingConfig {
+                refinement,
+                subdivision_threshold: 1e-6,
+                gain_threshold: 1e-6,
+                max_directional_nodes: nodes,
+                ..GuidingConfig::default()
+            };
+            let (flux, _) = run(&field, capped(Refinement::FluxShare));
+            let (gain, _) = run(&field, capped(Refinement::VarianceGain));
+            println!(
+                "| {} | {nodes} | {:.0} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                field.name,
+                gain.directional_leaves,
+                flux.variances.learned,
+                gain.variances.learned,
+                gain.variances.learned / flux.variances.learned,
+                flux.variances.oracle,
+                gain.variances.oracle,
+                gain.variances.learned / gain.variances.oracle,
+            );
+        }
+    }
+    let defaults = GuidingConfig::default();
+    println!(
+        "\nDefault thresholds (flux share ρ = {}, variance gain τ = {}), and the training time of all four fields (2 threads):\n",
+        defaults.subdivision_threshold, defaults.gain_threshold
+    );
+    println!("| refinement | {} | training |", field_names());
+    println!("|---|---|---|---|---|---|");
+    for refinement in [Refinement::FluxShare, Refinement::VarianceGain] {
+        let config = GuidingConfig {
+            refinement,
+            ..GuidingConfig::default()
+        };
+        let mut cells = Vec::new();
+        let mut seconds = 0.0;
+        for field in TestField::all() {
+            let (r, t) = run(&field, config.clone());
+            cells.push(format!(
+                "{:.3} ({:.0} leaves)",
+                r.variances.learned, r.directional_leaves
+            ));
+            seconds += t;
+        }
+        println!(
+            "| {refinement:?} | {} | {seconds:.0} s |",
+            cells.join(" | ")
+        );
+    }
+    println!();
 }
 
 /// The fields' names as table columns.

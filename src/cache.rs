@@ -12,7 +12,7 @@
 //! must have exactly one parent, depths and node counts stay within the configuration, and every
 //! number must be finite and in range. A malformed file is a [`CacheError`], never a panic.
 
-use crate::moments::AtomicMoments;
+use crate::moments::{AtomicMoments, AtomicQuadrants};
 use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
 use crate::selection::{
     GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
@@ -20,8 +20,8 @@ use crate::selection::{
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Rejections,
-    SpatialFilter,
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Refinement,
+    Rejections, SpatialFilter,
 };
 use glam::Vec3;
 use std::fmt;
@@ -35,7 +35,7 @@ pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
 pub const FORMAT_MAJOR: u16 = 1;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section).
-pub const FORMAT_MINOR: u16 = 1;
+pub const FORMAT_MINOR: u16 = 2;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -46,13 +46,19 @@ const SECTION_DIRECTIONAL: u32 = 3;
 /// 1.1: each spatial leaf's guide-vs-BSDF selection (optional: a reader without it starts at ½).
 const SECTION_SELECTION: u32 = 4;
 const SELECTION_LEN: usize = 32;
+/// 1.2: each directional leaf's quadrant sums, for refinement by variance gain (optional: a
+/// reader without it starts the iteration's quadrant sums at zero).
+const SECTION_QUADRANTS: u32 = 5;
+const QUADRANTS_LEN: usize = 64;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
 const META_LEN_1_0: usize = 176;
+/// Length of the `META` section in format 1.1.
+const META_LEN_1_1: usize = 184;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
-/// filters).
-const META_LEN: usize = 184;
+/// filters, 1.2 the refinement criterion and its threshold).
+const META_LEN: usize = 192;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -179,6 +185,7 @@ impl GuidingField {
                 encode_directional(&self.trees),
             ),
             (SECTION_SELECTION, 0, encode_selection(&self.trees)),
+            (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
         ];
         let table_end = HEADER_LEN + ENTRY_LEN * sections.len();
         let body: usize = sections.iter().map(|(_, _, s)| s.len()).sum();
@@ -223,6 +230,9 @@ impl GuidingField {
         field.trees = decode_directional(sections.directional, &field)?;
         if let Some(bytes) = sections.selection {
             decode_selection(bytes, &mut field.trees)?;
+        }
+        if let Some(bytes) = sections.quadrants {
+            decode_quadrants(bytes, &mut field.trees)?;
         }
         Ok(field)
     }
@@ -373,6 +383,7 @@ struct Sections<'a> {
     spatial: &'a [u8],
     directional: &'a [u8],
     selection: Option<&'a [u8]>,
+    quadrants: Option<&'a [u8]>,
 }
 
 /// Checks magic, version, length and checksum, and finds the sections.
@@ -437,7 +448,8 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         bytes: &bytes[HEADER_LEN..table_end],
         section: "sections",
     };
-    let (mut meta, mut spatial, mut directional, mut selection) = (None, None, None, None);
+    let (mut meta, mut spatial, mut directional) = (None, None, None);
+    let (mut selection, mut quadrants) = (None, None);
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -457,6 +469,7 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_SPATIAL => &mut spatial,
             SECTION_DIRECTIONAL => &mut directional,
             SECTION_SELECTION => &mut selection,
+            SECTION_QUADRANTS => &mut quadrants,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -478,6 +491,7 @@ fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         spatial: spatial.ok_or_else(|| missing("spatial"))?,
         directional: directional.ok_or_else(|| missing("directional"))?,
         selection,
+        quadrants,
     })
 }
 
@@ -521,6 +535,13 @@ fn encode_meta(field: &GuidingField) -> Vec<u8> {
         DirectionalFilter::Box => 1,
     });
     out.0.extend_from_slice(&[0; 2]);
+    debug_assert_eq!(out.0.len(), META_LEN_1_1);
+    out.u8(match c.refinement {
+        Refinement::FluxShare => 0,
+        Refinement::VarianceGain => 1,
+    });
+    out.0.extend_from_slice(&[0; 3]);
+    out.f32(c.gain_threshold);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -590,6 +611,20 @@ fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
                 ));
             }
         };
+        r.take(2)?;
+    }
+    // 1.2: the refinement criterion. A 1.1 (or 1.0) file was refined by flux share, and keeps
+    // being so.
+    if r.bytes.is_empty() {
+        field.config.refinement = Refinement::FluxShare;
+    } else {
+        field.config.refinement = match r.u8()? {
+            0 => Refinement::FluxShare,
+            1 => Refinement::VarianceGain,
+            other => return Err(corrupt("meta", format!("unknown refinement {other}"))),
+        };
+        r.take(3)?;
+        field.config.gain_threshold = r.f32()?;
     }
     field
         .config
@@ -684,6 +719,59 @@ fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
         out.u64(s.count);
     }
     out.0
+}
+
+fn encode_quadrants(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::new());
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let q = &t.recording.quadrants;
+        out.u32(q.len() as u32);
+        for (s2, n) in q.iter().flat_map(|q| q.get()) {
+            out.f64(s2);
+            out.u64(n);
+        }
+    }
+    out.0
+}
+
+/// Reads the optional quadrants section into `trees` (already decoded).
+fn decode_quadrants(bytes: &[u8], trees: &mut [DirectionalTree]) -> Result<(), CacheError> {
+    let section = "quadrants";
+    let mut r = In { bytes, section };
+    let n = r.count(4, "trees")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            section,
+            format!("{n} trees of quadrant sums for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let leaves = r.count(QUADRANTS_LEN, "leaves")?;
+        if leaves != t.recording.moments.len() {
+            return Err(corrupt(
+                section,
+                format!(
+                    "tree {i}: {leaves} leaves of quadrant sums for {} leaves",
+                    t.recording.moments.len()
+                ),
+            ));
+        }
+        for (k, slot) in t.recording.quadrants.iter_mut().enumerate() {
+            let mut q = [(0.0, 0); 4];
+            for x in &mut q {
+                *x = (r.f64()?, r.u64()?);
+            }
+            if !q.iter().all(|(s2, _)| s2.is_finite() && *s2 >= 0.0) {
+                return Err(corrupt(
+                    section,
+                    format!("tree {i}, leaf {k}: quadrant sums {q:?}"),
+                ));
+            }
+            *slot = AtomicQuadrants::from_quadrants(q);
+        }
+    }
+    Ok(())
 }
 
 /// Reads the optional selection section into `trees` (already decoded).
@@ -835,6 +923,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
         },
         recording: RecordingTree {
             nodes: nodes.into_boxed_slice(),
+            quadrants: (0..moments.len()).map(|_| Default::default()).collect(),
             moments: moments.into_boxed_slice(),
         },
         selection: GuideSelection::default(),

@@ -1,6 +1,6 @@
 //! The field's configuration: every knob, its default, and the checks that reject absurd values.
 
-use crate::{DirectionalFilter, LeafRule, SpatialFilter};
+use crate::{DirectionalFilter, LeafRule, Refinement, SpatialFilter};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -28,9 +28,17 @@ pub struct GuidingConfig {
     /// `c` in the spatial split rule: a spatial leaf splits when it received more than
     /// `c·sqrt(2^k)` samples in iteration `k` (default 12000). Must be finite and ≥ 1.
     pub spatial_threshold: f32,
-    /// `ρ`: a directional cell is subdivided when its share of the tree's mass exceeds `ρ`,
-    /// and collapsed when it does not (default 0.01). Must be in `(0, 1)`.
+    /// Which directional cells split at refine (default [`Refinement::VarianceGain`], chosen
+    /// with the quality harness: see `docs/quality.md`).
+    pub refinement: Refinement,
+    /// `ρ` of [`Refinement::FluxShare`]: a directional cell is subdivided when its share of the
+    /// tree's mass exceeds `ρ`, and collapsed when it does not (default 0.01). Must be in
+    /// `(0, 1)`.
     pub subdivision_threshold: f32,
+    /// `τ` of [`Refinement::VarianceGain`]: a directional cell is subdivided when splitting it
+    /// lowers the tree's `Σ sqrt(m)` by more than `τ` times it, and collapsed when it does not
+    /// (default 0.0015). Must be in `(0, 1)`.
+    pub gain_threshold: f32,
     /// Deepest directional level (default and maximum [`MAX_DIRECTIONAL_DEPTH`]). Must be ≥ 1.
     pub max_directional_depth: u32,
     /// Fraction of every distribution spread uniformly over the sphere (default 0.01), so that no
@@ -45,7 +53,7 @@ pub struct GuidingConfig {
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
     /// footprint above it is refused, and each directional tree is held to its share of it
-    /// (`max_memory_bytes / (trees · 120 bytes)` interior nodes, 120 bytes bounding what one
+    /// (`max_memory_bytes / (trees · 312 bytes)` interior nodes, 312 bytes bounding what one
     /// node costs); refusals are counted. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
@@ -67,7 +75,9 @@ impl Default for GuidingConfig {
         Self {
             rule: LeafRule::L2,
             spatial_threshold: 12000.0,
+            refinement: Refinement::VarianceGain,
             subdivision_threshold: 0.01,
+            gain_threshold: 0.0015,
             max_directional_depth: MAX_DIRECTIONAL_DEPTH,
             uniform_fraction: 0.01,
             max_directional_nodes: 8192,
@@ -104,6 +114,12 @@ impl GuidingConfig {
             self.subdivision_threshold > 0.0 && self.subdivision_threshold < 1.0,
             "subdivision_threshold",
             self.subdivision_threshold.to_string(),
+            "a number in (0, 1)",
+        )?;
+        check(
+            self.gain_threshold > 0.0 && self.gain_threshold < 1.0,
+            "gain_threshold",
+            self.gain_threshold.to_string(),
             "a number in (0, 1)",
         )?;
         check(

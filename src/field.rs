@@ -7,7 +7,9 @@
 
 use crate::filter::hash_jitter;
 use crate::moments::weights;
-use crate::quadtree::{BYTES_PER_NODE, DirectionalTree, RefineOutcome, RefineParams, SamplingTree};
+use crate::quadtree::{
+    BYTES_PER_NODE, DirectionalTree, LEAF_BYTES, RefineOutcome, RefineParams, SamplingTree,
+};
 use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
@@ -159,7 +161,7 @@ impl GuidingField {
                     self.insert_directional(home, square, w);
                     return Ok(());
                 }
-                self.trees[home].recording.count_only(square);
+                self.trees[home].recording.count_sample(square, w.1);
                 self.spatial.overlapping(lo, hi, |leaf, v| {
                     let share = v / volume;
                     let part = (w.0 * share, w.1 * share);
@@ -217,7 +219,9 @@ impl GuidingField {
         let params = RefineParams {
             rule: c.rule,
             uniform_fraction: f64::from(c.uniform_fraction),
+            refinement: c.refinement,
             subdivision_threshold: f64::from(c.subdivision_threshold),
+            gain_threshold: f64::from(c.gain_threshold),
             max_depth: c.max_directional_depth,
             max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
             prior_samples: f64::from(c.prior_samples),
@@ -320,8 +324,8 @@ impl GuidingField {
 }
 
 /// Bytes a directional tree costs besides its interior nodes: the struct itself and the moments
-/// of the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
-const TREE_FIXED_BYTES: u64 = (size_of::<DirectionalTree>() + 24) as u64;
+/// and quadrant sums of the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
+const TREE_FIXED_BYTES: u64 = size_of::<DirectionalTree>() as u64 + LEAF_BYTES;
 
 /// The heap and inline bytes of one spatial leaf's directional tree.
 fn tree_bytes(t: &DirectionalTree) -> usize {

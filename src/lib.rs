@@ -14,7 +14,8 @@
 //!   record   render threads, &self, lock-free     Sample ─► filter ─► spatial leaf ─► quadtree leaf moments
 //!                                                  (mixture terms ─► the leaf's guide-selection sums)
 //!   refine   between iterations, &mut self        moments ─► shrinkage ─► rule masses ─► sampling tree
-//!                                                  + new topology; guide probability ─► one Newton step
+//!                                                  quadrant sums ─► split gains ─► new topology
+//!                                                  guide probability ─► one Newton step
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()
 //!
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
@@ -47,6 +48,8 @@
 //! - `moments`: the per-cell sums `Σ v/p`, `Σ v²/p`, `n` and their lock-free accumulation.
 //! - `rule`: [`LeafRule`], how moments become leaf masses.
 //! - `quadtree`: the double-buffered directional quadtree (sample, pdf, record, refine).
+//! - [`refinement`]: which directional cells to split — by flux share, or by the variance a
+//!   split removes.
 //! - `spatial`: the binary tree over the scene's bounding cube.
 //! - `field`: [`GuidingField`], which ties them together.
 //! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
@@ -74,6 +77,7 @@ pub mod mixture;
 mod moments;
 mod quadtree;
 pub mod quality;
+pub mod refinement;
 mod rule;
 mod sample;
 pub mod selection;
@@ -90,6 +94,7 @@ pub use filter::{DirectionalFilter, SpatialFilter};
 pub use merge::MergeError;
 pub use moments::Moments;
 pub use quadtree::DirectionalCell;
+pub use refinement::Refinement;
 pub use rule::LeafRule;
 pub use sample::{MixtureTerms, RejectReason, Sample};
 pub use stats::{FieldStats, Rejections};

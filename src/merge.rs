@@ -99,6 +99,14 @@ impl GuidingField {
             {
                 x.add_moments(y.get());
             }
+            for (x, y) in a
+                .recording
+                .quadrants
+                .iter_mut()
+                .zip(b.recording.quadrants.iter())
+            {
+                x.add_quadrants(y.get());
+            }
             a.selection.add_sums(b.selection.sums());
         }
         self.rejected.add(&other.rejected.get());

@@ -141,3 +141,56 @@ impl Clone for AtomicMoments {
         Self::from_moments(self.get())
     }
 }
+
+/// Second-moment sums one level below a directional leaf: `Σ v²/p` and the count of the
+/// samples that landed in each of its four quadrants. They are what refinement by variance gain
+/// needs to estimate how much splitting the leaf would lower the optimal variance (see
+/// [`crate::refinement`]). Only a sample's own leaf records them, unfiltered, so the four
+/// quadrants of a leaf are always compared on the same samples.
+#[derive(Debug, Default)]
+pub(crate) struct AtomicQuadrants {
+    sum_sq: [AtomicF64; 4],
+    count: [AtomicU64; 4],
+}
+
+/// A snapshot of [`AtomicQuadrants`]: per quadrant `q = ix + 2·iy`, `(Σ v²/p, n)`.
+pub(crate) type Quadrants = [(f64, u64); 4];
+
+impl AtomicQuadrants {
+    /// Counts one sample of second-moment weight `w2` in quadrant `q`.
+    #[inline]
+    pub(crate) fn add(&self, q: usize, w2: f64) {
+        if w2 != 0.0 {
+            self.sum_sq[q].add(w2);
+        }
+        self.count[q].fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn get(&self) -> Quadrants {
+        std::array::from_fn(|q| (self.sum_sq[q].get(), self.count[q].load(Ordering::Relaxed)))
+    }
+
+    pub(crate) fn from_quadrants(q: Quadrants) -> Self {
+        Self {
+            sum_sq: q.map(|(s, _)| AtomicF64::new(s)),
+            count: q.map(|(_, n)| AtomicU64::new(n)),
+        }
+    }
+
+    /// Adds another leaf's quadrant sums (saturating, like [`AtomicMoments::add_moments`]).
+    pub(crate) fn add_quadrants(&mut self, other: Quadrants) {
+        let mine = self.get();
+        *self = Self::from_quadrants(std::array::from_fn(|q| {
+            (
+                (mine[q].0 + other[q].0).min(f64::MAX),
+                mine[q].1.saturating_add(other[q].1),
+            )
+        }));
+    }
+}
+
+impl Clone for AtomicQuadrants {
+    fn clone(&self) -> Self {
+        Self::from_quadrants(self.get())
+    }
+}

@@ -17,7 +17,8 @@
 //! lets bottom-up passes run as one reverse sweep.
 
 use crate::filter::overlap;
-use crate::moments::AtomicMoments;
+use crate::moments::{AtomicMoments, AtomicQuadrants};
+use crate::refinement::{MIN_SPLIT_SAMPLES, Refinement, split_gain};
 use crate::selection::GuideSelection;
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
@@ -34,9 +35,14 @@ pub(crate) const NO_CHILD: u16 = 0;
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
 
+/// Bytes one recording leaf holds: its moments (24) and its quadrant sums (64).
+pub(crate) const LEAF_BYTES: u64 =
+    (size_of::<AtomicMoments>() + size_of::<AtomicQuadrants>()) as u64;
+
 /// Upper bound on the bytes one interior node costs a directional tree: its sampling node (32),
-/// its recording node (16), and the moments of the three leaves it adds net (3 × 24).
-pub(crate) const BYTES_PER_NODE: u64 = 32 + 16 + 3 * 24;
+/// its recording node (16), and the three leaves it adds net (312 in all).
+pub(crate) const BYTES_PER_NODE: u64 =
+    (size_of::<SamplingNode>() + size_of::<[u32; 4]>()) as u64 + 3 * LEAF_BYTES;
 
 /// Bits of the fixed-point square coordinates descents use: deeper than any tree (20 levels).
 const FIXED_BITS: u32 = 24;
@@ -264,6 +270,9 @@ pub(crate) struct RecordingTree {
     /// Child slots: an interior node's index, or `LEAF_BIT | index into moments`.
     pub(crate) nodes: Box<[[u32; 4]]>,
     pub(crate) moments: Box<[AtomicMoments]>,
+    /// Per leaf (same index as `moments`): the second-moment sums of its four quadrants, from
+    /// the samples that landed in it (unfiltered).
+    pub(crate) quadrants: Box<[AtomicQuadrants]>,
 }
 
 impl RecordingTree {
@@ -285,12 +294,14 @@ impl RecordingTree {
         Self {
             nodes: nodes.into_boxed_slice(),
             moments: (0..leaves).map(|_| AtomicMoments::default()).collect(),
+            quadrants: (0..leaves).map(|_| AtomicQuadrants::default()).collect(),
         }
     }
 
-    /// The moments slot of the leaf that holds `s`, and the leaf's side.
+    /// The moments slot of the leaf that holds `s`, the leaf's depth, and the quadrant of the
+    /// leaf that holds `s`.
     #[inline]
-    fn leaf_of(&self, s: Vec2) -> (usize, f64) {
+    fn locate(&self, s: Vec2) -> (usize, u32, usize) {
         let p = fixed(s);
         let mut node = 0usize;
         let mut depth = 1;
@@ -298,17 +309,28 @@ impl RecordingTree {
             let (ix, iy) = quadrant_bits(p, depth);
             let slot = self.nodes[node][ix | iy << 1];
             if slot & LEAF_BIT != 0 {
-                return ((slot & !LEAF_BIT) as usize, cell_area(depth).sqrt());
+                // Depth ≤ 20 < FIXED_BITS: the bits one level below the leaf exist.
+                let (qx, qy) = quadrant_bits(p, depth + 1);
+                return ((slot & !LEAF_BIT) as usize, depth, qx | qy << 1);
             }
             node = slot as usize;
             depth += 1;
         }
     }
 
+    /// The moments slot of the leaf that holds `s`, and the leaf's side.
+    #[inline]
+    fn leaf_of(&self, s: Vec2) -> (usize, f64) {
+        let (k, depth, _) = self.locate(s);
+        (k, cell_area(depth).sqrt())
+    }
+
     /// Adds one sample of weights `(v/p, v²/p)` to the leaf that holds `s`.
     #[inline]
     pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
-        self.moments[self.leaf_of(s).0].add(weights);
+        let (k, _, q) = self.locate(s);
+        self.moments[k].add(weights);
+        self.quadrants[k].add(q, weights.1);
     }
 
     /// Adds weights to the leaf that holds `s` without counting a sample.
@@ -317,16 +339,18 @@ impl RecordingTree {
         self.moments[self.leaf_of(s).0].add_sums(weights);
     }
 
-    /// Counts a sample in the leaf that holds `s` (its weights go elsewhere).
+    /// Counts a sample in the leaf that holds `s`, and its second-moment weight `w2` in the
+    /// leaf's quadrant that holds `s` (its sums go elsewhere: a filter spreads them).
     #[inline]
-    pub(crate) fn count_only(&self, s: Vec2) {
-        self.moments[self.leaf_of(s).0].add_count();
+    pub(crate) fn count_sample(&self, s: Vec2, w2: f64) {
+        let (k, _, q) = self.locate(s);
+        self.moments[k].add_count();
+        self.quadrants[k].add(q, w2);
     }
 
-    /// [`record_box_sums`](Self::record_box_sums), and counts the sample in the leaf that
-    /// holds `s`.
+    /// [`record_box_sums`](Self::record_box_sums), and counts the sample where it landed.
     pub(crate) fn record_box(&self, s: Vec2, weights: (f64, f64)) {
-        self.count_only(s);
+        self.count_sample(s, weights.1);
         self.record_box_sums(s, weights);
     }
 
@@ -439,7 +463,9 @@ impl RecordingTree {
     }
 
     pub(crate) fn bytes(&self) -> usize {
-        std::mem::size_of_val(&*self.nodes) + std::mem::size_of_val(&*self.moments)
+        std::mem::size_of_val(&*self.nodes)
+            + std::mem::size_of_val(&*self.moments)
+            + std::mem::size_of_val(&*self.quadrants)
     }
 
     /// Each leaf's `(S1, S2)` shrunk toward its parent's: top-down, a cell's estimate is
@@ -450,14 +476,24 @@ impl RecordingTree {
     /// too large); a leaf whose mass is underestimated costs `m_i/α_i`, without bound. Pooling
     /// a sparse leaf with its siblings — which estimate neighbouring parts of the same light —
     /// bounds that, and leaves well-sampled leaves (`n ≫ n0`) as they were. `n0 = 0` turns it off.
-    pub(crate) fn shrunk_leaf_moments(&self, prior_samples: f64) -> Vec<(f64, f64)> {
+    ///
+    /// Returns the estimates of every interior node (the root's is its pooled sums) and of
+    /// every leaf.
+    pub(crate) fn shrunk_moments(&self, prior_samples: f64) -> ShrunkMoments {
+        self.shrink(prior_samples, |k| {
+            let m = self.moments[k].get();
+            (m.sum, m.sum_sq, m.count)
+        })
+    }
+
+    /// [`shrunk_moments`](Self::shrunk_moments) of any per-leaf sums `(S1, S2, n)`.
+    fn shrink(&self, prior_samples: f64, leaf: impl Fn(usize) -> (f64, f64, u64)) -> ShrunkMoments {
         let n = self.nodes.len();
         // Pooled sums per node, bottom-up (children have larger indices than their parents).
         let mut pooled = vec![(0.0f64, 0.0f64, 0u64); n];
         let slot_moments = |slot: u32, pooled: &[(f64, f64, u64)]| {
             if slot & LEAF_BIT != 0 {
-                let m = self.moments[(slot & !LEAF_BIT) as usize].get();
-                (m.sum, m.sum_sq, m.count)
+                leaf((slot & !LEAF_BIT) as usize)
             } else {
                 pooled[slot as usize]
             }
@@ -489,7 +525,95 @@ impl RecordingTree {
                 }
             }
         }
-        leaves
+        ShrunkMoments {
+            nodes: estimate,
+            leaves,
+        }
+    }
+
+    /// Split keys for [`Refinement::VarianceGain`]: each cell's estimated gain
+    /// `sqrt(m) − Σ_q sqrt(m_q)` (in units of `sqrt(|C|·S2)` of the shrunk sums), and the
+    /// threshold `gain_threshold · Σ_leaves sqrt(m)`. Interior cells take their children's
+    /// estimates, leaves their quadrant sums (see [`crate::refinement`]).
+    fn gain_keys(&self, depth: &[u32], params: &RefineParams) -> SplitKeys {
+        let quadrants: Vec<_> = self.quadrants.iter().map(|q| q.get()).collect();
+        // Every cell's second moment from the same unfiltered samples as the quadrant sums, so
+        // that a cell's gain means the same whether it was a leaf or interior.
+        let shrunk = self.shrink(params.prior_samples, |k| {
+            quadrants[k]
+                .iter()
+                .fold((0.0, 0.0, 0), |(_, s2, n), &(s, c)| {
+                    (0.0, s2 + s, n.saturating_add(c))
+                })
+        });
+        let root_of = |s2: f64, d: u32| (cell_area(d) * s2.max(0.0)).sqrt();
+        let node_root: Vec<f64> = (0..self.nodes.len())
+            .map(|i| root_of(shrunk.nodes[i].1, depth[i]))
+            .collect();
+        let slot_root = |i: usize, s: u32| match s & LEAF_BIT {
+            0 => node_root[s as usize],
+            _ => root_of(shrunk.leaves[(s & !LEAF_BIT) as usize].1, depth[i] + 1),
+        };
+        // Each interior cell's gain, sqrt(m) − Σ_children sqrt(m).
+        let node_gain: Vec<f64> = self
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, slots)| {
+                (node_root[i] - slots.iter().map(|&s| slot_root(i, s)).sum::<f64>()).max(0.0)
+            })
+            .collect();
+        // What each interior cell's subtree gained in all, its interior nodes and the samples
+        // that landed in it, bottom-up.
+        let leaf_count = |k: usize| quadrants[k].iter().fold(0u64, |a, q| a.saturating_add(q.1));
+        let mut subtree = vec![(0.0f64, 0.0f64, 0u64); self.nodes.len()];
+        for i in (0..self.nodes.len()).rev() {
+            let mut acc = (node_gain[i], 1.0, 0u64);
+            for &s in &self.nodes[i] {
+                if s & LEAF_BIT == 0 {
+                    let c = subtree[s as usize];
+                    acc = (acc.0 + c.0, acc.1 + c.1, acc.2.saturating_add(c.2));
+                } else {
+                    acc.2 = acc.2.saturating_add(leaf_count((s & !LEAF_BIT) as usize));
+                }
+            }
+            subtree[i] = acc;
+        }
+        // A cell that saw fewer than MIN_SPLIT_SAMPLES samples does not split.
+        let enough = |n: u64, key: f64| if n >= MIN_SPLIT_SAMPLES { key } else { 0.0 };
+        let mut slot = vec![[0.0f64; 4]; self.nodes.len()];
+        let mut below_leaf = vec![[0.0f64; 4]; self.moments.len()];
+        let mut total = 0.0;
+        for (i, slots) in self.nodes.iter().enumerate() {
+            // A leaf's relative gain is shrunk toward its parent's.
+            let parent = if node_root[i] > 0.0 {
+                node_gain[i] / node_root[i]
+            } else {
+                0.0
+            };
+            for (q, &s) in slots.iter().enumerate() {
+                slot[i][q] = if s & LEAF_BIT == 0 {
+                    // One level's gain, or what the whole known subtree gained per node spent
+                    // if that is more: a split that pays only further down is kept.
+                    let (gain, nodes, n) = subtree[s as usize];
+                    enough(n, node_gain[s as usize].max(gain / nodes))
+                } else {
+                    let k = (s & !LEAF_BIT) as usize;
+                    let e = split_gain(&quadrants[k], params.prior_samples, parent);
+                    let r = slot_root(i, s);
+                    total += r;
+                    below_leaf[k] = std::array::from_fn(|c| {
+                        enough(quadrants[k][c].1, r * e.fractions[c] * e.relative_gain)
+                    });
+                    enough(leaf_count(k), r * e.relative_gain)
+                };
+            }
+        }
+        SplitKeys {
+            slot,
+            below_leaf: Some(below_leaf),
+            threshold: params.gain_threshold * total,
+        }
     }
 
     /// The depth of every node (the root is 0), from one forward sweep.
@@ -506,12 +630,22 @@ impl RecordingTree {
     }
 }
 
+/// Shrunk `(S1, S2)` estimates of a recording tree's cells.
+pub(crate) struct ShrunkMoments {
+    /// Per interior node.
+    pub(crate) nodes: Vec<(f64, f64)>,
+    /// Per leaf (moments index).
+    pub(crate) leaves: Vec<(f64, f64)>,
+}
+
 /// How the recorded statistics of one iteration become a distribution and a new topology.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct RefineParams {
     pub rule: LeafRule,
     pub uniform_fraction: f64,
+    pub refinement: Refinement,
     pub subdivision_threshold: f64,
+    pub gain_threshold: f64,
     pub max_depth: u32,
     pub max_nodes: u32,
     pub prior_samples: f64,
@@ -545,14 +679,61 @@ impl Default for DirectionalTree {
     }
 }
 
-/// A candidate cell during refinement, ordered by its share of the mass.
+/// What a candidate cell was in the ended iteration's recording tree.
+#[derive(Clone, Copy, Debug)]
+enum Origin {
+    /// Interior node `n`.
+    Interior(u32),
+    /// Leaf `k` (moments index).
+    Leaf(u32),
+    /// Below the ended iteration's leaves.
+    New,
+}
+
+/// A candidate cell during refinement, ordered by its key (share of the mass, or gain).
 struct Candidate {
-    share: f64,
+    key: f64,
     cell_depth: u32,
-    /// The recording-tree node this cell was in the ended iteration, if it was interior there.
-    old_node: Option<u32>,
+    origin: Origin,
     /// The new node and quadrant that will point to this cell.
     parent: (u32, usize),
+}
+
+/// How refinement ranks the cells of the ended iteration and decides to split them: a cell
+/// splits while its key exceeds `threshold`.
+struct SplitKeys {
+    /// Per interior node of the ended iteration and quadrant: the key of the cell in that slot.
+    slot: Vec<[f64; 4]>,
+    /// Variance gain: per leaf of the ended iteration, the predicted gains of its quadrants (and
+    /// no split below them). Flux share: `None`, a cell below the old leaves has a quarter of
+    /// its parent's share.
+    below_leaf: Option<Vec<[f64; 4]>>,
+    threshold: f64,
+}
+
+impl SplitKeys {
+    /// The keys and origins of the four children of a cell.
+    fn children(&self, old: &[[u32; 4]], origin: Origin, key: f64) -> [(f64, Origin); 4] {
+        std::array::from_fn(|q| match origin {
+            Origin::Interior(o) => {
+                let slot = old[o as usize][q];
+                let origin = if slot & LEAF_BIT != 0 {
+                    Origin::Leaf(slot & !LEAF_BIT)
+                } else {
+                    Origin::Interior(slot)
+                };
+                (self.slot[o as usize][q], origin)
+            }
+            Origin::Leaf(k) => match &self.below_leaf {
+                Some(gains) => (gains[k as usize][q], Origin::New),
+                None => (0.25 * key, Origin::New),
+            },
+            Origin::New => match &self.below_leaf {
+                Some(_) => (0.0, Origin::New),
+                None => (0.25 * key, Origin::New),
+            },
+        })
+    }
 }
 
 impl PartialEq for Candidate {
@@ -568,15 +749,15 @@ impl PartialOrd for Candidate {
 }
 impl Ord for Candidate {
     fn cmp(&self, other: &Self) -> Ordering {
-        self.share.total_cmp(&other.share)
+        self.key.total_cmp(&other.key)
     }
 }
 
-/// The cells refinement has still to decide on: a stack (depth first) or a max-heap by share.
+/// The cells refinement has still to decide on: a stack (depth first) or a max-heap by key.
 trait Frontier {
     fn push(&mut self, c: Candidate);
     fn pop(&mut self) -> Option<Candidate>;
-    /// Whether cells come out largest share first.
+    /// Whether cells come out largest key first.
     fn ordered(&self) -> bool;
 }
 
@@ -630,8 +811,9 @@ impl DirectionalTree {
         let depth = rec.depths();
 
         // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
-        //    shrunk toward their parents' (see `shrunk_leaf_moments`).
-        let leaf_moments = rec.shrunk_leaf_moments(params.prior_samples);
+        //    shrunk toward their parents' (see `shrunk_moments`).
+        let shrunk = rec.shrunk_moments(params.prior_samples);
+        let leaf_moments = &shrunk.leaves;
         let mut leaf_mass = vec![0.0f64; rec.moments.len()];
         for (i, slots) in rec.nodes.iter().enumerate() {
             for &slot in slots {
@@ -687,63 +869,64 @@ impl DirectionalTree {
                 .collect(),
         };
 
-        // 3. The next topology, from the same shares: split while a share exceeds ρ.
-        let (recording, refused) = self.refined_topology(&share, params);
+        // 3. The next topology: split by share (from the same shares) or by variance gain.
+        let keys = match params.refinement {
+            Refinement::FluxShare => SplitKeys {
+                slot: share,
+                below_leaf: None,
+                threshold: params.subdivision_threshold,
+            },
+            Refinement::VarianceGain => rec.gain_keys(&depth, params),
+        };
+        let (recording, refused) = self.refined_topology(&keys, params);
         self.sampling = sampling;
         self.recording = recording;
         RefineOutcome { samples, refused }
     }
 
-    /// Grows a new topology from the root: a cell whose share exceeds ρ becomes interior (its
-    /// children's shares come from the ended iteration where it was interior, or split evenly
-    /// where it was a leaf — so one refine can add several levels); every other cell is a leaf,
-    /// which collapses whatever lay below it.
+    /// Grows a new topology from the root: a cell whose key exceeds the threshold becomes
+    /// interior (its children's keys come from the ended iteration where it was interior or a
+    /// leaf, and are predicted below — so one refine can add several levels); every other
+    /// cell is a leaf, which collapses whatever lay below it.
     ///
     /// Depth first while the node cap is not reached; when it would be, the tree is grown again
-    /// largest share first, so the cap refuses the least important splits.
-    fn refined_topology(&self, share: &[[f64; 4]], params: &RefineParams) -> (RecordingTree, u64) {
-        let mut grown = self.grow(share, params, Vec::new());
+    /// largest key first, so the cap refuses the least important splits.
+    fn refined_topology(&self, keys: &SplitKeys, params: &RefineParams) -> (RecordingTree, u64) {
+        let mut grown = self.grow(keys, params, Vec::new());
         if grown.gave_up {
-            grown = self.grow(share, params, BinaryHeap::new());
+            grown = self.grow(keys, params, BinaryHeap::new());
         }
         (RecordingTree::from_nodes(grown.nodes), grown.refused)
     }
 
     /// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
     /// refuses (and counts) further splits; an unordered one gives up.
-    fn grow(
-        &self,
-        share: &[[f64; 4]],
-        params: &RefineParams,
-        mut frontier: impl Frontier,
-    ) -> Grown {
+    fn grow(&self, keys: &SplitKeys, params: &RefineParams, mut frontier: impl Frontier) -> Grown {
         let old = &self.recording.nodes;
         let mut out = Grown {
             nodes: vec![[FREE; 4]],
             refused: 0,
             gave_up: false,
         };
-        let push_children =
-            |frontier: &mut dyn Frontier, new: u32, old_node: Option<u32>, s: f64, d: u32| {
-                for q in 0..4 {
-                    let (share, old_child) = match old_node {
-                        Some(o) => {
-                            let slot = old[o as usize][q];
-                            (share[o as usize][q], (slot & LEAF_BIT == 0).then_some(slot))
-                        }
-                        None => (s / 4.0, None),
-                    };
-                    frontier.push(Candidate {
-                        share,
-                        cell_depth: d + 1,
-                        old_node: old_child,
-                        parent: (new, q),
-                    });
-                }
-            };
-        push_children(&mut frontier, 0, Some(0), 1.0, 0);
+        let push_children = |frontier: &mut dyn Frontier, new: u32, c: &Candidate| {
+            for (q, (key, origin)) in keys.children(old, c.origin, c.key).into_iter().enumerate() {
+                frontier.push(Candidate {
+                    key,
+                    cell_depth: c.cell_depth + 1,
+                    origin,
+                    parent: (new, q),
+                });
+            }
+        };
+        let root = Candidate {
+            key: f64::INFINITY,
+            cell_depth: 0,
+            origin: Origin::Interior(0),
+            parent: (0, 0),
+        };
+        push_children(&mut frontier, 0, &root);
         while let Some(c) = frontier.pop() {
-            if c.share <= params.subdivision_threshold || c.cell_depth >= params.max_depth {
+            if c.key <= keys.threshold || c.cell_depth >= params.max_depth {
                 continue;
             }
             if out.nodes.len() >= params.max_nodes as usize {
@@ -757,7 +940,7 @@ impl DirectionalTree {
             let new = out.nodes.len() as u32;
             out.nodes.push([FREE; 4]);
             out.nodes[c.parent.0 as usize][c.parent.1] = new;
-            push_children(&mut frontier, new, c.old_node, c.share, c.cell_depth);
+            push_children(&mut frontier, new, &c);
         }
         out
     }
@@ -771,6 +954,12 @@ impl DirectionalTree {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_node_costs_what_the_configuration_documents() {
+        assert_eq!(LEAF_BYTES, 24 + 64);
+        assert_eq!(BYTES_PER_NODE, 312);
+    }
 
     #[test]
     fn node_is_half_a_cache_line() {

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 use sdguide::synthetic::{LightField, Rng, Workload, room_bounds};
-use sdguide::{CacheError, GuidingConfig, GuidingField, MergeError, Sample};
+use sdguide::{CacheError, GuidingConfig, GuidingField, MergeError, Refinement, Sample};
 
 fn workload() -> Workload {
     Workload {
@@ -182,7 +182,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((1, 1), &parts(&bytes)),
+        assemble((1, 2), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
@@ -204,7 +204,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((2, 0), (1, 1)));
+            assert_eq!((found, supported), ((2, 0), (1, 2)));
         }
         other => panic!("{other:?}"),
     }
@@ -291,6 +291,39 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "meta",
         "prior_samples",
     );
+    // META 1.2: a refinement this version does not define, a gain threshold out of range.
+    corrupt(
+        forge(&bytes, 1, 184, [7, 0, 0, 0]),
+        "meta",
+        "unknown refinement",
+    );
+    corrupt(
+        forge(&bytes, 1, 188, 2.0f32.to_le_bytes()),
+        "meta",
+        "gain_threshold",
+    );
+    // QUADRANTS: a tree count that differs from the trees', a leaf count that differs from
+    // the first tree's, a negative sum.
+    corrupt(
+        forge(&bytes, 5, 0, 1u32.to_le_bytes()),
+        "quadrants",
+        "trees",
+    );
+    corrupt(
+        forge(&bytes, 5, 4, 1u32.to_le_bytes()),
+        "quadrants",
+        "leaves",
+    );
+    corrupt(
+        forge(
+            &bytes,
+            5,
+            8 + 4,
+            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
+        ),
+        "quadrants",
+        "quadrant sums",
+    );
     // SELECTION: a count that differs from the trees', a probability out of its bounds, a
     // negative curvature sum.
     corrupt(
@@ -325,8 +358,9 @@ fn the_version_one_file_still_loads() {
     assert_eq!(stats.iteration, 2);
     assert_eq!(stats.rejected.non_finite_position, 1);
     assert!(stats.spatial_leaves > 1 && stats.samples_recorded > 0);
-    // A 1.0 file predates shrinkage and keeps training without it.
+    // A 1.0 file predates shrinkage and refinement by gain, and keeps training without them.
     assert_eq!(field.config().prior_samples, 0.0);
+    assert_eq!(field.config().refinement, Refinement::FluxShare);
     // Nothing was lost in reading: written again (as the current minor version) and read back,
     // it is the same field, and the 1.0 file's bytes are all still there.
     let rewritten = field.to_bytes();
@@ -344,6 +378,22 @@ fn the_version_one_file_still_loads() {
     let mut field = field;
     field.refine();
     assert_eq!(field.stats().iteration, 3);
+}
+
+#[test]
+fn a_version_one_one_file_keeps_refining_by_flux_share() {
+    // A 1.1 writer: META without the refinement fields, no quadrant sums.
+    let field = small_field();
+    let mut old = parts(&field.to_bytes());
+    old[0].2.truncate(184);
+    old.retain(|p| p.0 != 5);
+    let loaded = GuidingField::from_bytes(&assemble((1, 1), &old)).unwrap();
+    assert_eq!(loaded.config().refinement, Refinement::FluxShare);
+    assert_eq!(
+        loaded.config().gain_threshold,
+        GuidingConfig::default().gain_threshold
+    );
+    assert_eq!(loaded.stats(), field.stats());
 }
 
 /// Regenerates `tests/data/v1.sdgc`: `cargo test -- --ignored write_version_one_file`.

@@ -2,7 +2,7 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::sphere::{INV_SPHERE_AREA, square_to_direction};
-use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Sample};
+use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Refinement, Sample};
 
 fn unit_box() -> Aabb {
     Aabb::new(Vec3::ZERO, Vec3::ONE)
@@ -53,6 +53,7 @@ fn hand_built_with(rule: LeafRule, prior_samples: f32) -> GuidingField {
         rule,
         spatial_threshold: 1e9,
         prior_samples,
+        refinement: Refinement::FluxShare,
         ..GuidingConfig::default()
     };
     let mut field = GuidingField::new(unit_box(), config).unwrap();
@@ -286,6 +287,7 @@ fn the_memory_budget_bounds_directional_growth_too() {
     // An absurd but valid configuration: every cell with any light wants to split, as deep and
     // as wide as allowed. The budget (64 KiB) must still hold.
     let config = GuidingConfig {
+        refinement: Refinement::FluxShare,
         subdivision_threshold: 1e-30,
         max_directional_nodes: 65535,
         spatial_threshold: 50.0,
@@ -318,4 +320,67 @@ fn the_memory_budget_bounds_directional_growth_too() {
         stats.directional_splits_refused > 0 && stats.spatial_splits_refused > 0,
         "{stats:?}"
     );
+}
+
+/// Records `n × n` samples on a grid of the square, of value 1, uniformly drawn.
+fn record_flat(field: &GuidingField, n: usize) {
+    for i in 0..n * n {
+        let s = Vec2::new(
+            ((i % n) as f32 + 0.5) / n as f32,
+            ((i / n) as f32 + 0.5) / n as f32,
+        );
+        let d = square_to_direction(s);
+        field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, INV_SPHERE_AREA));
+    }
+}
+
+fn with_refinement(refinement: Refinement) -> GuidingConfig {
+    GuidingConfig {
+        refinement,
+        spatial_threshold: 1e9,
+        ..GuidingConfig::default()
+    }
+}
+
+#[test]
+fn variance_gain_spends_no_node_on_flat_light() {
+    // Flat light: every quadrant of every leaf has the same second moment, so no split gains
+    // anything. Flux share splits every cell whose area exceeds ρ (down to depth 4).
+    let leaves = |refinement| {
+        let mut field = GuidingField::new(unit_box(), with_refinement(refinement)).unwrap();
+        record_flat(&field, 200);
+        field.refine();
+        let cell = field.cells().next().unwrap();
+        cell.recorded().len()
+    };
+    assert_eq!(leaves(Refinement::VarianceGain), 4);
+    assert_eq!(leaves(Refinement::FluxShare), 4 + 12 + 48 + 192);
+}
+
+#[test]
+fn variance_gain_refines_toward_the_light_and_collapses_when_it_goes_away() {
+    // The pole light (d.z > 0.99) is the strip x > 0.995 of the square.
+    let mut field = trained_on_pole(with_refinement(Refinement::VarianceGain), 4);
+    let stats = field.stats();
+    assert!(stats.directional_depth >= 5, "{stats:?}");
+    let cell = field.cells().next().unwrap();
+    for (leaf, _) in cell.distribution().leaves() {
+        // Below depth 2, every split cell (the leaf's parent) holds some of the light.
+        let parent = 2.0 * leaf.size;
+        let parent_end = (leaf.origin.x / parent).floor() * parent + parent;
+        assert!(
+            leaf.depth <= 2 || parent_end > 0.995,
+            "a dark cell was split: {leaf:?}"
+        );
+    }
+    // Flux share spends more than twice the leaves on the same light.
+    let flux = trained_on_pole(with_refinement(Refinement::FluxShare), 4).stats();
+    assert!(
+        flux.directional_leaves > 2 * stats.directional_leaves,
+        "{flux:?}"
+    );
+    // The light turns flat: one iteration collapses the tree to the root's four leaves.
+    record_flat(&field, 200);
+    field.refine();
+    assert_eq!(field.cells().next().unwrap().recorded().len(), 4);
 }

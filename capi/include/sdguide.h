@@ -33,6 +33,17 @@
 #define SDG_FILTER_BOX 2
 
 /*
+ Refinement: split directional cells by their share of the mass (`subdivision_threshold`).
+ */
+#define SDG_REFINEMENT_FLUX_SHARE 0
+
+/*
+ Refinement: split directional cells by the variance the split removes (`gain_threshold`;
+ the default).
+ */
+#define SDG_REFINEMENT_VARIANCE_GAIN 1
+
+/*
  What a call did. Negative values are errors; see `sdg_last_error()` for the message.
  */
 typedef enum {
@@ -137,6 +148,14 @@ typedef struct {
    `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
    */
   uint32_t directional_filter;
+  /*
+   `SDG_REFINEMENT_FLUX_SHARE` or `SDG_REFINEMENT_VARIANCE_GAIN`.
+   */
+  uint32_t refinement;
+  /*
+   `τ`: directional cells split while the split lowers `Σ sqrt(m)` by more than `τ` times it.
+   */
+  float gain_threshold;
 } sdg_config;
 
 /*

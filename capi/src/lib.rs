@@ -25,7 +25,8 @@ use glam::{Vec2, Vec3};
 use parking_lot::lock_api::ArcRwLockReadGuard;
 use parking_lot::{RawRwLock, RwLock};
 use sdguide::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Sample, SpatialFilter,
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
+    SpatialFilter,
 };
 use std::cell::RefCell;
 use std::ffi::{CStr, CString, c_char};
@@ -68,6 +69,12 @@ pub const SDG_FILTER_NEAREST: u32 = 0;
 pub const SDG_FILTER_STOCHASTIC: u32 = 1;
 /// Filter: spread the sample over the cells a cell-sized box around it overlaps.
 pub const SDG_FILTER_BOX: u32 = 2;
+
+/// Refinement: split directional cells by their share of the mass (`subdivision_threshold`).
+pub const SDG_REFINEMENT_FLUX_SHARE: u32 = 0;
+/// Refinement: split directional cells by the variance the split removes (`gain_threshold`;
+/// the default).
+pub const SDG_REFINEMENT_VARIANCE_GAIN: u32 = 1;
 
 /// A 3D vector (world space).
 #[repr(C)]
@@ -124,6 +131,10 @@ pub struct sdg_config {
     pub spatial_filter: u32,
     /// `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
     pub directional_filter: u32,
+    /// `SDG_REFINEMENT_FLUX_SHARE` or `SDG_REFINEMENT_VARIANCE_GAIN`.
+    pub refinement: u32,
+    /// `τ`: directional cells split while the split lowers `Σ sqrt(m)` by more than `τ` times it.
+    pub gain_threshold: f32,
 }
 
 /// One recorded path vertex (see the Rust `Sample`): at `position`, light of `value` arrived
@@ -300,6 +311,11 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
                 DirectionalFilter::Nearest => SDG_FILTER_NEAREST,
                 DirectionalFilter::Box => SDG_FILTER_BOX,
             },
+            refinement: match c.refinement {
+                Refinement::FluxShare => SDG_REFINEMENT_FLUX_SHARE,
+                Refinement::VarianceGain => SDG_REFINEMENT_VARIANCE_GAIN,
+            },
+            gain_threshold: c.gain_threshold,
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", config) }?;
@@ -364,6 +380,12 @@ pub unsafe extern "C" fn sdg_field_create(
                     );
                 }
             },
+            refinement: match c.refinement {
+                SDG_REFINEMENT_FLUX_SHARE => Refinement::FluxShare,
+                SDG_REFINEMENT_VARIANCE_GAIN => Refinement::VarianceGain,
+                other => return fail(sdg_status::Config, format!("unknown refinement {other}")),
+            },
+            gain_threshold: c.gain_threshold,
         };
         if out.is_null() {
             return fail(sdg_status::NullPointer, "`out` is null");
