@@ -7,7 +7,8 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Sample, SpatialFilter,
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
+    SpatialFilter,
 };
 
 /// At most this many operations and refines per input, so every input runs in milliseconds.
@@ -122,6 +123,13 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
     } else {
         DirectionalFilter::Box
     };
+    // Bit 3 picks the refinement; the arbitrary ρ doubles as τ (both must be in (0, 1)).
+    if filters & 8 == 0 {
+        config.refinement = Refinement::FluxShare;
+    } else {
+        config.refinement = Refinement::VarianceGain;
+        config.gain_threshold = config.subdivision_threshold;
+    }
     GuidingField::new(bounds, config).ok()
 }
 

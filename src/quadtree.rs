@@ -350,8 +350,10 @@ impl RecordingTree {
 
     /// [`record_box_sums`](Self::record_box_sums), and counts the sample where it landed.
     pub(crate) fn record_box(&self, s: Vec2, weights: (f64, f64)) {
-        self.count_sample(s, weights.1);
-        self.record_box_sums(s, weights);
+        let (k, depth, q) = self.locate(s);
+        self.moments[k].add_count();
+        self.quadrants[k].add(q, weights.1);
+        self.splat(s, cell_area(depth).sqrt(), weights);
     }
 
     /// Adds weights `(v/p, v²/p)` to the cells that a square the size of the leaf holding `s`,
@@ -363,12 +365,16 @@ impl RecordingTree {
     ///
     /// No allocation: the walk starts at the deepest node whose cell holds the whole square and
     /// goes down level by level, at most 4 cells at a time.
-    pub(crate) fn record_box_sums(&self, s: Vec2, (w1, w2): (f64, f64)) {
+    pub(crate) fn record_box_sums(&self, s: Vec2, weights: (f64, f64)) {
+        self.splat(s, self.leaf_of(s).1, weights);
+    }
+
+    /// [`record_box_sums`](Self::record_box_sums) with the side `size` of the leaf holding `s`.
+    fn splat(&self, s: Vec2, size: f64, (w1, w2): (f64, f64)) {
         if w1 == 0.0 {
             return;
         }
         // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
-        let size = self.leaf_of(s).1;
         let (sx, sy) = (f64::from(s.x), f64::from(s.y));
         let (x0, x1) = ((sx - 0.5 * size).max(0.0), (sx + 0.5 * size).min(1.0));
         let (y0, y1) = (sy - 0.5 * size, sy + 0.5 * size);
@@ -385,6 +391,7 @@ impl RecordingTree {
         };
         // 1. Down to the deepest node whose cell holds the whole square (the root if it wraps).
         let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
+        let mut depth = 0;
         if y0 >= 0.0 && y1 <= 1.0 {
             loop {
                 let half = 0.5 * cell;
@@ -395,6 +402,7 @@ impl RecordingTree {
                     break;
                 }
                 (node, ox, oy, cell) = (slot, cx, cy, half);
+                depth += 1;
             }
         }
         // 2. Level by level below it, down to cells of the square's size. The square overlaps
@@ -419,12 +427,12 @@ impl RecordingTree {
                         self.moments[(slot & !LEAF_BIT) as usize].add_sums(part);
                     } else if half <= size || pending == next.len() {
                         // Finer than the square (or, unreachably, a fifth cell): the leaf
-                        // holding the overlap's centre.
+                        // holding the overlap's centre, found from this cell down.
                         let centre = Vec2::new(
                             (0.5 * (x0.max(cx) + x1.min(cx + half))) as f32,
                             (0.5 * ((y0 + k).max(cy) + (y1 + k).min(cy + half))) as f32,
                         );
-                        self.moments[self.leaf_of(centre).0].add_sums(part);
+                        self.moments[self.leaf_below(slot, depth + 1, centre)].add_sums(part);
                     } else {
                         next[pending] = (slot, cx, cy);
                         pending += 1;
@@ -432,6 +440,23 @@ impl RecordingTree {
                 }
             }
             (level, cells, cell) = (next, pending, half);
+            depth += 1;
+        }
+    }
+
+    /// The moments slot of the leaf that holds `s`, descending from interior node `node`, whose
+    /// cell (which holds `s`) is at `depth`.
+    #[inline]
+    fn leaf_below(&self, mut node: u32, mut depth: u32, s: Vec2) -> usize {
+        let p = fixed(s);
+        loop {
+            let (ix, iy) = quadrant_bits(p, depth + 1);
+            let slot = self.nodes[node as usize][ix | iy << 1];
+            if slot & LEAF_BIT != 0 {
+                return (slot & !LEAF_BIT) as usize;
+            }
+            node = slot;
+            depth += 1;
         }
     }
 

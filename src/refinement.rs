@@ -12,9 +12,10 @@
 //!
 //! [`Refinement::FluxShare`], the SD-tree's rule, splits cells that hold a large share of the
 //! mass, flat or not; [`Refinement::VarianceGain`] splits the cells with the largest gain. To
-//! estimate `gain_i` each leaf records the second-moment sums of its four quadrants
-//! ([`AtomicQuadrants`](crate::moments::AtomicQuadrants)); interior cells of the ended
-//! iteration have theirs from their children.
+//! estimate `gain_i` each leaf records the second-moment sums (and counts) of its four
+//! quadrants, from the samples that land in it; interior cells of the ended iteration have
+//! theirs from their children, and keep their split if their whole known subtree gained more
+//! per node spent than their first level alone.
 //!
 //! **Noise.** A square root of a noisy sum is biased, and the bias fakes gain: one sample in a
 //! leaf puts all of its second moment in one quadrant, which looks like a point light (relative

@@ -4,12 +4,12 @@
 //! ```text
 //! cargo run --release -p sdguide-render -- [--scene door] [--time 40] [--spp N] [--rule both]
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
-//!     [--training-share 0.3] [--guide-probability F]
+//!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
 use indicatif::{ProgressBar, ProgressStyle};
-use sdguide::{GuidingConfig, GuidingField, LeafRule};
+use sdguide::{GuidingConfig, GuidingField, LeafRule, Refinement};
 use sdguide_render::image::{Image, side_by_side, write_png};
 use sdguide_render::reference;
 use sdguide_render::render::{Budget, Method, Outcome, Training, render};
@@ -21,7 +21,8 @@ use std::time::Duration;
 
 const USAGE: &str = "usage: render [--scene door|glossy-box|furnace] [--time SECONDS (0: none)] \
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
-[--width N] [--height N] [--training-share F] [--guide-probability F] [--reference]";
+[--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
+[--reference]";
 
 struct Args {
     scene: String,
@@ -35,6 +36,7 @@ struct Args {
     height: usize,
     make_reference: bool,
     guide_probability: Option<f32>,
+    refinement: Refinement,
 }
 
 fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
@@ -56,6 +58,7 @@ fn parse() -> Result<Args, String> {
         height: 240,
         make_reference: false,
         guide_probability: None,
+        refinement: Refinement::default(),
     };
     let mut argv = std::env::args().skip(1);
     while let Some(flag) = argv.next() {
@@ -88,6 +91,13 @@ fn parse() -> Result<Args, String> {
             "--cache" => a.cache = Some(PathBuf::from(&value)),
             "--width" => a.width = number(&flag, &value)?,
             "--height" => a.height = number(&flag, &value)?,
+            "--refinement" => {
+                a.refinement = match value.as_str() {
+                    "gain" => Refinement::VarianceGain,
+                    "flux" => Refinement::FluxShare,
+                    _ => return Err(format!("bad value for --refinement: {value}")),
+                }
+            }
             "--guide-probability" => {
                 let p: f32 = number(&flag, &value)?;
                 if !(0.0..=1.0).contains(&p) {
@@ -143,7 +153,10 @@ fn run_method(
         args.budget,
         args.seed,
         Training {
-            config: &GuidingConfig::default(),
+            config: &GuidingConfig {
+                refinement: args.refinement,
+                ..GuidingConfig::default()
+            },
             cache,
             guide_probability: args.guide_probability,
         },
