@@ -144,17 +144,22 @@ fn trained_on_pole(config: GuidingConfig, iterations: u32) -> GuidingField {
     field
 }
 
-/// Uniformly spread samples on a `n × n` grid with light only within ~8° of +z.
-fn record_pole(field: &GuidingField, n: usize) {
+/// Records samples on an `n × n` grid of the square (uniformly drawn) at the centre of the box,
+/// of value `light(direction)`.
+fn record_grid(field: &GuidingField, n: usize, light: impl Fn(Vec3) -> f32) {
     for i in 0..n * n {
         let s = Vec2::new(
             ((i % n) as f32 + 0.5) / n as f32,
             ((i / n) as f32 + 0.5) / n as f32,
         );
         let d = square_to_direction(s);
-        let v = if d.z > 0.99 { 100.0 } else { 0.0 };
-        field.record(&Sample::new(Vec3::splat(0.5), d, v, INV_SPHERE_AREA));
+        field.record(&Sample::new(Vec3::splat(0.5), d, light(d), INV_SPHERE_AREA));
     }
+}
+
+/// Uniformly spread samples on a `n × n` grid with light only within ~8° of +z.
+fn record_pole(field: &GuidingField, n: usize) {
+    record_grid(field, n, |d| if d.z > 0.99 { 100.0 } else { 0.0 });
 }
 
 #[test]
@@ -322,16 +327,9 @@ fn the_memory_budget_bounds_directional_growth_too() {
     );
 }
 
-/// Records `n × n` samples on a grid of the square, of value 1, uniformly drawn.
+/// Uniformly spread samples on a `n × n` grid with light of 1 everywhere.
 fn record_flat(field: &GuidingField, n: usize) {
-    for i in 0..n * n {
-        let s = Vec2::new(
-            ((i % n) as f32 + 0.5) / n as f32,
-            ((i / n) as f32 + 0.5) / n as f32,
-        );
-        let d = square_to_direction(s);
-        field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, INV_SPHERE_AREA));
-    }
+    record_grid(field, n, |_| 1.0);
 }
 
 fn with_refinement(refinement: Refinement) -> GuidingConfig {
