@@ -205,7 +205,7 @@ impl GuidingField {
 
     /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
     /// distribution (by [`GuidingConfig::rule`]) and its next directional topology (split and
-    /// collapse by share, in parallel over leaves); then spatial leaves that received more
+    /// collapse by [`GuidingConfig::refinement`], in parallel over leaves); then spatial leaves that received more
     /// than `c·sqrt(2^k)` samples in iteration `k` split, the children starting from copies of
     /// the parent's new distribution. Statistics restart for the next iteration. A leaf that
     /// recorded nothing keeps its distribution.
