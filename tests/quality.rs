@@ -27,8 +27,9 @@ fn trained(field: &TestField, rule: LeafRule) -> (GuidingField, Report) {
 }
 
 fn trained_with(field: &TestField, config: GuidingConfig) -> (GuidingField, Report) {
-    let (guiding, reports) = quality::train(field, config, BUDGET, Holdout::default()).unwrap();
-    (guiding, reports.last().unwrap().1)
+    let trained = quality::train(field, config, BUDGET).unwrap();
+    let report = trained.evaluate(field, Holdout::default());
+    (trained.field, report)
 }
 
 #[test]
@@ -102,7 +103,9 @@ fn l2_beats_l1_on_every_field_and_clearly_on_the_noisy_ones() {
 #[test]
 fn the_learned_estimator_is_unbiased_and_its_exact_variance_matches_monte_carlo() {
     for field in TestField::all() {
-        let (guiding, _) = trained(&field, LeafRule::L2);
+        let guiding = quality::train(&field, GuidingConfig::default(), BUDGET)
+            .unwrap()
+            .field;
         let w = &field.workload;
         let mut rng = Rng::new(41);
         for _ in 0..3 {
