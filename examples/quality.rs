@@ -166,7 +166,6 @@ fn refinement_tables(budget: Budget) {
         "| light field | nodes per tree | leaves | flux share | variance gain | gain / flux | oracle, flux partition | oracle, gain partition | L2 / oracle, gain |"
     );
     println!("|---|---|---|---|---|---|---|---|---|");
-    let run = |field: &TestField, config: GuidingConfig| train(field, config, budget);
     for field in TestField::all() {
         for nodes in [30, 60, 120] {
             let capped = |refinement| GuidingConfig {
@@ -176,8 +175,8 @@ fn refinement_tables(budget: Budget) {
                 max_directional_nodes: nodes,
                 ..GuidingConfig::default()
             };
-            let (flux, _) = run(&field, capped(Refinement::FluxShare));
-            let (gain, _) = run(&field, capped(Refinement::VarianceGain));
+            let (flux, _) = train(&field, capped(Refinement::FluxShare), budget);
+            let (gain, _) = train(&field, capped(Refinement::VarianceGain), budget);
             println!(
                 "| {} | {nodes} | {:.0} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 field.name,
@@ -206,7 +205,7 @@ fn refinement_tables(budget: Budget) {
         let mut cells = Vec::new();
         let mut seconds = 0.0;
         for field in TestField::all() {
-            let (r, t) = run(&field, config.clone());
+            let (r, t) = train(&field, config.clone(), budget);
             cells.push(format!(
                 "{:.3} ({:.0} leaves)",
                 r.variances.learned, r.directional_leaves

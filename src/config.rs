@@ -57,10 +57,11 @@ pub struct GuidingConfig {
     /// node costs); refusals are counted. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
-    /// (default 2, chosen with the quality harness: see `docs/quality.md`). At refine, a cell's sums become `w · own + (1 − w) · parent's / 4` with
-    /// `w = n/(n + n0)`, top-down, so a sparsely sampled leaf borrows from its siblings
-    /// instead of trusting a few heavy-tailed values (a leaf whose mass is underestimated costs
-    /// variance without bound). 0 turns shrinkage off. Must be finite and ≥ 0.
+    /// (default 2, chosen with the quality harness: see `docs/quality.md`). At refine, a cell's
+    /// sums become `w · own + (1 − w) · parent's / 4` with `w = n/(n + n0)`, top-down, so a
+    /// sparsely sampled leaf borrows from its siblings instead of trusting a few heavy-tailed
+    /// values (a leaf whose mass is underestimated costs variance without bound). 0 turns
+    /// shrinkage off. Must be finite and ≥ 0.
     pub prior_samples: f32,
     /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`], chosen
     /// with the quality harness; see [`filter`](crate::filter)).

@@ -205,9 +205,9 @@ impl GuidingField {
 
     /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
     /// distribution (by [`GuidingConfig::rule`]) and its next directional topology (split and
-    /// collapse by [`GuidingConfig::refinement`], in parallel over leaves); then spatial leaves that received more
-    /// than `c·sqrt(2^k)` samples in iteration `k` split, the children starting from copies of
-    /// the parent's new distribution. Statistics restart for the next iteration. A leaf that
+    /// collapse by [`GuidingConfig::refinement`], in parallel over leaves); then spatial leaves
+    /// that received more than `c·sqrt(2^k)` samples in iteration `k` split, the children
+    /// starting from copies of the parent's new distribution. Statistics restart for the next iteration. A leaf that
     /// recorded nothing keeps its distribution.
     pub fn refine(&mut self) {
         let c = &self.config;

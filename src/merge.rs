@@ -47,8 +47,9 @@ impl std::error::Error for MergeError {}
 
 impl GuidingField {
     /// Adds the statistics `other` recorded in the current iteration — every cell's sums and
-    /// counts, the guide-selection sums, and the rejection counts — to this field's. Both fields must have started the
-    /// iteration from the same state (typically: the same cache, loaded on two workers).
+    /// counts, the guide-selection sums, and the rejection counts — to this field's. Both
+    /// fields must have started the iteration from the same state (typically: the same cache,
+    /// loaded on two workers).
     ///
     /// ```
     /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};

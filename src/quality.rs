@@ -466,7 +466,7 @@ pub fn evaluate(
         variances: sum,
         directional_leaves: leaves,
         spatial_leaves: field.stats().spatial_leaves,
-        selection: selection_variances(field, recorded, workload, holdout),
+        selection: selection_over(field, workload, &regions),
     }
 }
 
@@ -550,10 +550,19 @@ pub fn selection_variances(
     workload: &Workload,
     holdout: Holdout,
 ) -> Option<SelectionVariances> {
+    workload.bsdf?;
+    selection_over(field, workload, &held_out_regions(recorded, holdout))
+}
+
+/// [`selection_variances`] over regions already drawn.
+fn selection_over(
+    field: &GuidingField,
+    workload: &Workload,
+    regions: &[Region],
+) -> Option<SelectionVariances> {
     let bsdf = workload.bsdf?;
-    let regions = held_out_regions(recorded, holdout);
     let mut sum = SelectionVariances::default();
-    for r in &regions {
+    for r in regions {
         let xs = &r.positions[..r.positions.len().min(SELECTION_POSITIONS)];
         let dist = field.distribution(xs[0]);
         let leaves = dist.leaves();
