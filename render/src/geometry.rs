@@ -13,6 +13,9 @@ pub struct Ray {
     pub t_max: f32,
 }
 
+/// How far [`Ray::leaving`] pushes a ray's origin off its surface.
+pub const SURFACE_OFFSET: f32 = 1e-4;
+
 /// Distance below which a hit is taken for self-intersection.
 pub const T_MIN: f32 = 1e-4;
 
@@ -22,9 +25,26 @@ impl Ray {
     pub fn leaving(p: Vec3, n: Vec3, direction: Vec3, t_max: f32) -> Self {
         let offset = if n.dot(direction) >= 0.0 { n } else { -n };
         Ray {
-            origin: p + offset * 1e-4,
+            origin: p + offset * SURFACE_OFFSET,
             direction,
             t_max,
+        }
+    }
+
+    /// The shadow ray from a surface point `p` (geometric normal `n`) toward a point `distance`
+    /// away along `direction`: it leaves `p` as [`Ray::leaving`] does and stops short of the
+    /// target, so the surface the target lies on does not block it.
+    ///
+    /// The origin moves up to [`SURFACE_OFFSET`] toward the target, so the segment must end
+    /// earlier by more than that, whatever the distance. A relative margin alone,
+    /// `distance · (1 − ε)`, reaches the target whenever `distance < |cos θ| · SURFACE_OFFSET / ε`
+    /// (`θ` between `n` and `direction`): with both 10⁻⁴, for every light closer than a metre,
+    /// which then blocks its own shadow ray.
+    pub fn shadow(p: Vec3, n: Vec3, direction: Vec3, distance: f32) -> Self {
+        let ray = Ray::leaving(p, n, direction, 0.0);
+        Ray {
+            t_max: distance * (1.0 - 1e-4) - 2.0 * SURFACE_OFFSET,
+            ..ray
         }
     }
 

@@ -240,12 +240,7 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
         if let Some(light) = scene.sample_light(hit.position, pick, u) {
             let f = sampler.bsdf_cos(light.direction);
             if f != Vec3::ZERO {
-                let shadow = Ray::leaving(
-                    hit.position,
-                    hit.normal,
-                    light.direction,
-                    light.distance * (1.0 - 1e-4),
-                );
+                let shadow = Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
                 if !scene.occluded(&shadow) {
                     let weight = power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
                     let c = f * light.radiance * (weight / light.pdf);

@@ -19,7 +19,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-const USAGE: &str = "usage: render [--scene door|glossy-box|furnace] [--time SECONDS (0: none)] \
+const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--time SECONDS (0: none)] \
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
 [--reference]";

@@ -191,13 +191,14 @@ impl Scene {
         match name {
             "door" => Some(crate::scenes::door()),
             "glossy-box" => Some(crate::scenes::glossy_box()),
+            "uplight" => Some(crate::scenes::uplight()),
             "furnace" => Some(crate::scenes::furnace(0.5, 1.0)),
             _ => None,
         }
     }
 
     /// Names accepted by [`Scene::by_name`].
-    pub const NAMES: [&'static str; 3] = ["door", "glossy-box", "furnace"];
+    pub const NAMES: [&'static str; 4] = ["door", "glossy-box", "uplight", "furnace"];
 
     /// The closest hit along `ray`.
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {

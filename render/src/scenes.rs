@@ -77,6 +77,83 @@ pub fn door() -> Scene {
     b.build("door", camera, 1.0)
 }
 
+/// "Uplight": a room lit only by a floor lamp whose shade opens upward, as interiors often are.
+/// The lamp throws a pool of light on the ceiling, and everything else sees the light only
+/// after it bounces off that pool. Light sampling finds the lamp only from the ceiling; from
+/// the rest of the room the pool is a bright patch that only scattering can find.
+///
+/// Room `x, z ∈ [0, 5]`, `y ∈ [0, 2.6]`, metres; the lamp stands at `x = z = 3.9`, its 0.2 m
+/// square emitter 1.7 m up, facing up inside a 0.3 m square shade that rises to 2.0 m.
+pub fn uplight() -> Scene {
+    let mut b = SceneBuilder::default();
+    let wall = b.material(Material::diffuse(Vec3::new(0.72, 0.70, 0.66)));
+    let ceiling = b.material(Material::diffuse(Vec3::splat(0.8)));
+    let floor = b.material(Material::glossy(
+        Vec3::new(0.30, 0.22, 0.16),
+        Vec3::splat(0.35),
+        0.12,
+    ));
+    let shade = b.material(Material::diffuse(Vec3::new(0.55, 0.50, 0.40)));
+    let metal = b.material(Material::glossy(
+        Vec3::splat(0.02),
+        Vec3::new(0.90, 0.78, 0.55),
+        0.18,
+    ));
+    let red = b.material(Material::diffuse(Vec3::new(0.62, 0.12, 0.10)));
+    let blue = b.material(Material::glossy(
+        Vec3::new(0.08, 0.14, 0.45),
+        Vec3::splat(0.2),
+        0.3,
+    ));
+    let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::new(400.0, 360.0, 300.0)));
+
+    let (w, h, d) = (5.0, 2.6, 5.0);
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    b.quad(Vec3::ZERO, x * w, z * d, floor)
+        .quad(y * h, z * d, x * w, ceiling);
+    b.quad(Vec3::ZERO, y * h, z * d, wall)
+        .quad(x * w, z * d, y * h, wall)
+        .quad(Vec3::ZERO, x * w, y * h, wall)
+        .quad(z * d, y * h, x * w, wall);
+    // The lamp: a pole, the shade's four sides and bottom (open at the top), and the emitter
+    // facing up inside it.
+    let c = Vec3::new(3.9, 0.0, 3.9);
+    b.cuboid(
+        c - Vec3::new(0.02, 0.0, 0.02),
+        c + Vec3::new(0.02, 1.6, 0.02),
+        false,
+        shade,
+    );
+    let (lo, hi, r) = (1.6, 2.0, 0.15);
+    let corner = |dx: f32, dz: f32| c + Vec3::new(dx * r, lo, dz * r);
+    let (sx, sz, sy) = (x * 2.0 * r, z * 2.0 * r, y * (hi - lo));
+    for (p, u, v) in [
+        (corner(-1.0, -1.0), sx, sy),
+        (corner(-1.0, 1.0), sy, sx),
+        (corner(-1.0, -1.0), sy, sz),
+        (corner(1.0, -1.0), sz, sy),
+        (corner(-1.0, -1.0), sz, sx),
+    ] {
+        b.quad(p, u, v, shade);
+    }
+    b.quad(c + Vec3::new(-0.1, 1.7, -0.1), z * 0.2, x * 0.2, light);
+    // Furniture.
+    b.sphere(Vec3::new(2.3, 0.55, 2.6), 0.55, metal)
+        .cuboid(
+            Vec3::new(0.6, 0.0, 3.2),
+            Vec3::new(1.5, 0.9, 4.3),
+            false,
+            red,
+        )
+        .sphere(Vec3::new(3.3, 0.3, 1.5), 0.3, blue);
+    let camera = Camera {
+        eye: Vec3::new(0.35, 1.5, 0.35),
+        target: Vec3::new(3.6, 1.1, 3.4),
+        fov_degrees: 65.0,
+    };
+    b.build("uplight", camera, 1.0)
+}
+
 /// "Glossy box": a Cornell-style box with a glossy floor and two glossy spheres of different
 /// roughness, lit by a small (0.15 m square) ceiling light. Open at the front.
 pub fn glossy_box() -> Scene {

@@ -1,13 +1,13 @@
-//! The scene machinery: the BVH finds what a linear scan finds, the light sampler's pdf is the
-//! one MIS uses for emitters hit by scattered rays, and stored references are refused when they
-//! do not match the scene.
+//! The scene machinery: the BVH finds what a linear scan finds, shadow rays see a light exactly
+//! when it is visible, the light sampler's pdf is the one MIS uses for emitters hit by scattered
+//! rays, and stored references are refused when they do not match the scene.
 
 use glam::Vec3;
 use sdguide::synthetic::Rng;
 use sdguide_render::geometry::{Ray, T_MIN};
 use sdguide_render::image::Image;
 use sdguide_render::reference::{self, ReferenceError};
-use sdguide_render::scenes::{door, furnace, glossy_box};
+use sdguide_render::scenes::{door, furnace, glossy_box, uplight};
 
 fn random_direction(rng: &mut Rng) -> Vec3 {
     let u = rng.next_vec2();
@@ -52,6 +52,63 @@ fn bvh_finds_the_closest_hit_of_a_linear_scan() {
             }
         }
         assert!(hits > 10_000, "{hits}");
+    }
+}
+
+/// Next-event estimation's shadow ray from a surface point to a point drawn on a light is
+/// unblocked exactly when the light point is visible: when a ray cast back from the light point
+/// first hits the surface point. Lights near surfaces (the glossy box's ceiling light, the
+/// uplight's lamp over its ceiling) must not block their own shadow rays.
+#[test]
+fn shadow_rays_see_a_light_exactly_when_it_is_visible() {
+    for scene in [door(), glossy_box(), uplight()] {
+        let (lo, hi) = scene.bounds();
+        let mut rng = Rng::new(31);
+        let (mut visible, mut tested, mut wrong) = (0, 0, 0);
+        while tested < 20_000 {
+            let o = lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let ray = Ray {
+                origin: o,
+                direction: random_direction(&mut rng),
+                t_max: f32::INFINITY,
+            };
+            let Some(hit) = scene.intersect(&ray) else {
+                continue;
+            };
+            let Some(light) = scene.sample_light(hit.position, rng.next_f32(), rng.next_vec2())
+            else {
+                continue;
+            };
+            // Only the side of the surface the camera-side ray came from: that is where
+            // shading points lie.
+            if hit.normal.dot(light.direction) * hit.normal.dot(-ray.direction) <= 0.0 {
+                continue;
+            }
+            tested += 1;
+            let target = hit.position + light.direction * light.distance;
+            let back = Ray {
+                origin: target,
+                direction: -light.direction,
+                t_max: f32::INFINITY,
+            };
+            let truth = scene
+                .intersect(&back)
+                .is_some_and(|h| (h.position - hit.position).length() < 1e-3);
+            let shadow = Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
+            visible += usize::from(truth);
+            wrong += usize::from(truth == scene.occluded(&shadow));
+        }
+        // A disagreement needs a segment grazing an edge within the 10⁻⁴ offsets.
+        assert!(
+            wrong <= tested / 1000,
+            "{}: {wrong} of {tested}",
+            scene.name
+        );
+        assert!(
+            visible > tested / 100,
+            "{}: {visible} visible of {tested}",
+            scene.name
+        );
     }
 }
 
