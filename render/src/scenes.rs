@@ -194,12 +194,18 @@ pub fn glossy_box() -> Scene {
 /// reflects diffusely with `albedo`. The radiance is the same everywhere and in every direction,
 /// `L = emission / (1 − albedo)`, whatever the estimator, so a render must converge to it.
 pub fn furnace(albedo: f32, emission: f32) -> Scene {
+    furnace_sized(albedo, emission, 1.0)
+}
+
+/// The white furnace of [`furnace`], a cube of half-size `half` (metres). Its radiance does not
+/// depend on the size; a small one puts every light sample within a metre of its shading point.
+pub fn furnace_sized(albedo: f32, emission: f32, half: f32) -> Scene {
     let mut b = SceneBuilder::default();
     let m = b.material(Material::diffuse(Vec3::splat(albedo)).emitting(Vec3::splat(emission)));
-    b.cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), true, m);
+    b.cuboid(Vec3::splat(-half), Vec3::splat(half), true, m);
     let camera = Camera {
-        eye: Vec3::new(0.1, 0.2, -0.3),
-        target: Vec3::new(0.4, 0.1, 1.0),
+        eye: Vec3::new(0.1, 0.2, -0.3) * half,
+        target: Vec3::new(0.4, 0.1, 1.0) * half,
         fov_degrees: 70.0,
     };
     b.build("furnace", camera, 1.0)

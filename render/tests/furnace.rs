@@ -8,7 +8,7 @@ use sdguide::{GuidingConfig, GuidingField, LeafRule};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::Guiding;
 use sdguide_render::render::{field_bounds, render_pass, training_pass};
-use sdguide_render::scenes::furnace;
+use sdguide_render::scenes::{furnace, furnace_sized};
 
 const ALBEDO: f32 = 0.3;
 const EMISSION: f32 = 1.0;
@@ -59,6 +59,18 @@ fn assert_converges(image: &Image, what: &str) {
 #[test]
 fn unguided_furnace_converges_to_the_analytic_radiance() {
     assert_converges(&render_furnace(None), "unguided");
+}
+
+/// A 0.4 m furnace: every light sample lies within a metre of its shading point, where shadow
+/// rays must still reach the light (a shadow ray that ends behind the light is blocked by it,
+/// and that energy is lost: MIS still counts on next-event estimation to find it).
+#[test]
+fn a_small_furnace_converges_too() {
+    let scene = furnace_sized(ALBEDO, EMISSION, 0.2);
+    let mut sum = Image::new(SIZE.0, SIZE.1);
+    render_pass(&scene, None, &mut sum, SPP, 7, 0);
+    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
+    assert_converges(&sum, "small furnace");
 }
 
 #[test]
