@@ -38,7 +38,7 @@ impl Camera {
 /// A scene ready to render.
 #[derive(Clone, Debug)]
 pub struct Scene {
-    /// The scene's name (`door`, `glossy-box`, `furnace`).
+    /// The scene's name (`door`, `glossy-box`, `uplight`, `furnace`).
     pub name: String,
     /// The shapes.
     pub shapes: Vec<Shape>,

@@ -7,6 +7,7 @@ use sdguide::synthetic::Rng;
 use sdguide_render::geometry::{Ray, T_MIN};
 use sdguide_render::image::Image;
 use sdguide_render::reference::{self, ReferenceError};
+use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{door, furnace, glossy_box, uplight};
 
 fn random_direction(rng: &mut Rng) -> Vec3 {
@@ -19,7 +20,7 @@ fn random_direction(rng: &mut Rng) -> Vec3 {
 
 #[test]
 fn bvh_finds_the_closest_hit_of_a_linear_scan() {
-    for scene in [door(), glossy_box()] {
+    for scene in [door(), glossy_box(), uplight()] {
         let (lo, hi) = scene.bounds();
         let mut rng = Rng::new(12);
         let mut hits = 0;
@@ -114,12 +115,20 @@ fn shadow_rays_see_a_light_exactly_when_it_is_visible() {
 
 #[test]
 fn light_sampling_pdf_is_the_pdf_mis_uses_for_hit_emitters() {
-    for scene in [door(), glossy_box(), furnace(0.5, 1.0)] {
+    let centre = |scene: &Scene| {
+        let (lo, hi) = scene.bounds();
+        (lo + hi) * 0.5 + Vec3::new(0.1, -0.2, 0.05)
+    };
+    let (door, glossy_box, furnace) = (door(), glossy_box(), furnace(0.5, 1.0));
+    // The uplight's lamp faces up: it is seen from above it only.
+    let cases = [
+        (centre(&door), door),
+        (centre(&glossy_box), glossy_box),
+        (centre(&furnace), furnace),
+        (Vec3::new(3.85, 2.4, 3.95), uplight()),
+    ];
+    for (x, scene) in cases {
         let mut rng = Rng::new(45);
-        let x = {
-            let (lo, hi) = scene.bounds();
-            (lo + hi) * 0.5 + Vec3::new(0.1, -0.2, 0.05)
-        };
         let mut checked = 0;
         for _ in 0..2000 {
             let Some(light) = scene.sample_light(x, rng.next_f32(), rng.next_vec2()) else {
