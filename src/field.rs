@@ -207,8 +207,8 @@ impl GuidingField {
     /// distribution (by [`GuidingConfig::rule`]) and its next directional topology (split and
     /// collapse by [`GuidingConfig::refinement`], in parallel over leaves); then spatial leaves
     /// that received more than `c·sqrt(2^k)` samples in iteration `k` split, the children
-    /// starting from copies of the parent's new distribution. Statistics restart for the next iteration. A leaf that
-    /// recorded nothing keeps its distribution.
+    /// starting from copies of the parent's new distribution. Statistics restart for the next
+    /// iteration. A leaf that recorded nothing keeps its distribution.
     pub fn refine(&mut self) {
         let c = &self.config;
         // The memory budget binds the directional trees too: what the spatial tree and the
