@@ -4,6 +4,27 @@ use crate::material::Material;
 use crate::scene::{Camera, Scene, SceneBuilder};
 use glam::Vec3;
 
+/// The off-white walls of the `door` and `uplight` rooms.
+fn room_wall() -> Material {
+    Material::diffuse(Vec3::new(0.72, 0.70, 0.66))
+}
+
+/// The glossy wooden floor of the `door` and `uplight` rooms.
+fn glossy_floor() -> Material {
+    Material::glossy(Vec3::new(0.30, 0.22, 0.16), Vec3::splat(0.35), 0.12)
+}
+
+/// Registers the materials of the furniture both rooms hold, in this order (a scene's
+/// fingerprint covers it): a metal sphere, a red box, a glossy blue sphere.
+fn furniture_materials(b: &mut SceneBuilder) -> [u16; 3] {
+    [
+        Material::glossy(Vec3::splat(0.02), Vec3::new(0.90, 0.78, 0.55), 0.18),
+        Material::diffuse(Vec3::new(0.62, 0.12, 0.10)),
+        Material::glossy(Vec3::new(0.08, 0.14, 0.45), Vec3::splat(0.2), 0.3),
+    ]
+    .map(|m| b.material(m))
+}
+
 /// "Door ajar": a room lit only through a door left ajar to a second room, where a ceiling light
 /// shines. Most of the camera room sees the light only after two or more bounces through the
 /// gap, which unguided path tracing finds by chance; the floor is glossy.
@@ -13,25 +34,11 @@ use glam::Vec3;
 /// light room.
 pub fn door() -> Scene {
     let mut b = SceneBuilder::default();
-    let wall = b.material(Material::diffuse(Vec3::new(0.72, 0.70, 0.66)));
-    let floor = b.material(Material::glossy(
-        Vec3::new(0.30, 0.22, 0.16),
-        Vec3::splat(0.35),
-        0.12,
-    ));
+    let wall = b.material(room_wall());
+    let floor = b.material(glossy_floor());
     let light_room_floor = b.material(Material::diffuse(Vec3::splat(0.55)));
     let door = b.material(Material::diffuse(Vec3::new(0.45, 0.32, 0.22)));
-    let metal = b.material(Material::glossy(
-        Vec3::splat(0.02),
-        Vec3::new(0.90, 0.78, 0.55),
-        0.18,
-    ));
-    let red = b.material(Material::diffuse(Vec3::new(0.62, 0.12, 0.10)));
-    let blue = b.material(Material::glossy(
-        Vec3::new(0.08, 0.14, 0.45),
-        Vec3::splat(0.2),
-        0.3,
-    ));
+    let [metal, red, blue] = furniture_materials(&mut b);
     let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::new(600.0, 540.0, 450.0)));
 
     let (w, h, d) = (7.0, 2.5, 5.0);
@@ -86,25 +93,11 @@ pub fn door() -> Scene {
 /// square emitter 1.7 m up, facing up inside a 0.3 m square shade that rises to 2.0 m.
 pub fn uplight() -> Scene {
     let mut b = SceneBuilder::default();
-    let wall = b.material(Material::diffuse(Vec3::new(0.72, 0.70, 0.66)));
+    let wall = b.material(room_wall());
     let ceiling = b.material(Material::diffuse(Vec3::splat(0.8)));
-    let floor = b.material(Material::glossy(
-        Vec3::new(0.30, 0.22, 0.16),
-        Vec3::splat(0.35),
-        0.12,
-    ));
+    let floor = b.material(glossy_floor());
     let shade = b.material(Material::diffuse(Vec3::new(0.55, 0.50, 0.40)));
-    let metal = b.material(Material::glossy(
-        Vec3::splat(0.02),
-        Vec3::new(0.90, 0.78, 0.55),
-        0.18,
-    ));
-    let red = b.material(Material::diffuse(Vec3::new(0.62, 0.12, 0.10)));
-    let blue = b.material(Material::glossy(
-        Vec3::new(0.08, 0.14, 0.45),
-        Vec3::splat(0.2),
-        0.3,
-    ));
+    let [metal, red, blue] = furniture_materials(&mut b);
     let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::new(400.0, 360.0, 300.0)));
 
     let (w, h, d) = (5.0, 2.6, 5.0);

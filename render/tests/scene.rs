@@ -179,6 +179,16 @@ fn light_sampling_covers_the_emitters_solid_angle() {
     assert!((mean - four_pi).abs() < 5.0 * se, "{mean} ± {se}");
 }
 
+/// The references in the repository are those of the scenes as built now (a change to a scene
+/// must come with a new reference).
+#[test]
+fn the_stored_references_match_their_scenes() {
+    for scene in [door(), glossy_box(), uplight()] {
+        let loaded = reference::load(&reference::directory(), &scene, 320, 240);
+        assert!(loaded.is_ok(), "{}: {:?}", scene.name, loaded.err());
+    }
+}
+
 #[test]
 fn references_are_checked_against_the_scene() {
     let dir = std::env::temp_dir().join(format!("sdguide-render-ref-{}", std::process::id()));
