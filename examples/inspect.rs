@@ -5,7 +5,8 @@
 //! ```
 //!
 //! The heat map shows the directional distribution at the position on the equal-area square
-//! (horizontal: cos θ from −1 to 1, i.e. −z to +z; vertical: φ from 0 to 2π), coloured by
+//! (the octahedral map: +z at the centre, −z at the corners, ±x at the middles of the right and
+//! left sides, ±y at the top and bottom), coloured by
 //! log₁₀ of the density relative to uniform, with the quadtree's leaf borders drawn in grey.
 
 use glam::{Vec2, Vec3};

@@ -31,11 +31,13 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The first eight bytes of every cache file.
 pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
-/// The format's major version: a reader refuses other majors.
-pub const FORMAT_MAJOR: u16 = 1;
+/// The format's major version: a reader refuses other majors. Major 2 has the byte layout of
+/// 1.2, with the directional trees on the octahedral map (see [`sphere`](crate::sphere)); in a
+/// 1.x file they are on the cylindrical map, so the same bytes mean other directions.
+pub const FORMAT_MAJOR: u16 = 2;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section).
-pub const FORMAT_MINOR: u16 = 2;
+pub const FORMAT_MINOR: u16 = 0;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;

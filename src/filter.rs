@@ -13,7 +13,8 @@
 //!   centred on the position, overlaps, weighted by the overlapped volume.
 //! - [`DirectionalFilter::Box`] adds the sample to every directional leaf that a square the size
 //!   of its leaf, centred on its point of the equal-area square, overlaps, weighted by the
-//!   overlapped area; the square wraps around at the `φ = 0` seam.
+//!   overlapped area. At the border of the square, where the octahedral map folds onto itself
+//!   (see [`sphere`](crate::sphere)), the square is clipped.
 //!
 //! Footprints are clipped to the domain and the weights renormalized, so every filter records a
 //! sample's whole weight. Sample *counts* (which drive spatial splits and the shrinkage of sparse

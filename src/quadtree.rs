@@ -139,7 +139,7 @@ impl DirectionalCell {
         f64::from(self.size) * f64::from(self.size)
     }
 
-    fn child(&self, q: usize) -> DirectionalCell {
+    pub(crate) fn child(&self, q: usize) -> DirectionalCell {
         let half = 0.5 * self.size;
         let offset = Vec2::new((q & 1) as f32, (q >> 1) as f32) * half;
         DirectionalCell {
@@ -357,8 +357,8 @@ impl RecordingTree {
     }
 
     /// Adds weights `(v/p, v²/p)` to the cells that a square the size of the leaf holding `s`,
-    /// centred on `s`, overlaps, in proportion to the overlap (clipped at `x = 0, 1`, wrapped
-    /// around in `y`, the `φ` seam). A leaf gets its share; a region the square overlaps that
+    /// centred on `s`, overlaps, in proportion to the overlap (clipped at the square's border,
+    /// where the map folds). A leaf gets its share; a region the square overlaps that
     /// is subdivided more finely than the square gets its share in the one leaf holding the
     /// centre of the overlap — the filter smooths at the scale of the sample's own leaf, so the
     /// work per sample is bounded (a few cells) however fine the neighbourhood.
@@ -377,22 +377,15 @@ impl RecordingTree {
         // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
         let (sx, sy) = (f64::from(s.x), f64::from(s.y));
         let (x0, x1) = ((sx - 0.5 * size).max(0.0), (sx + 0.5 * size).min(1.0));
-        let (y0, y1) = (sy - 0.5 * size, sy + 0.5 * size);
-        let area = (x1 - x0) * size;
+        let (y0, y1) = ((sy - 0.5 * size).max(0.0), (sy + 0.5 * size).min(1.0));
+        let area = (x1 - x0) * (y1 - y0);
         if area <= 0.0 {
             return self.record_sums(s, (w1, w2));
         }
-        // The y-interval of the square's copy (shifted by −1, 0 or +1) that overlaps [c0, c1).
-        let overlap_y = |c0: f64, c1: f64| {
-            [-1.0, 0.0, 1.0]
-                .into_iter()
-                .map(|k| (overlap(y0 + k, y1 + k, c0, c1), k))
-                .find(|(f, _)| *f > 0.0)
-        };
-        // 1. Down to the deepest node whose cell holds the whole square (the root if it wraps).
+        // 1. Down to the deepest node whose cell holds the whole square .
         let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
         let mut depth = 0;
-        if y0 >= 0.0 && y1 <= 1.0 {
+        {
             loop {
                 let half = 0.5 * cell;
                 let (ix, iy) = (usize::from(x0 >= ox + half), usize::from(y0 >= oy + half));
@@ -418,9 +411,10 @@ impl RecordingTree {
                 for (q, &slot) in self.nodes[node as usize].iter().enumerate() {
                     let (cx, cy) = (ox + (q & 1) as f64 * half, oy + (q >> 1) as f64 * half);
                     let fx = overlap(x0, x1, cx, cx + half);
-                    let Some((fy, k)) = overlap_y(cy, cy + half).filter(|_| fx > 0.0) else {
+                    let fy = overlap(y0, y1, cy, cy + half);
+                    if fx <= 0.0 || fy <= 0.0 {
                         continue;
-                    };
+                    }
                     let share = fx * fy / area;
                     let part = (w1 * share, w2 * share);
                     if slot & LEAF_BIT != 0 {
@@ -430,7 +424,7 @@ impl RecordingTree {
                         // holding the overlap's centre, found from this cell down.
                         let centre = Vec2::new(
                             (0.5 * (x0.max(cx) + x1.min(cx + half))) as f32,
-                            (0.5 * ((y0 + k).max(cy) + (y1 + k).min(cy + half))) as f32,
+                            (0.5 * (y0.max(cy) + y1.min(cy + half))) as f32,
                         );
                         self.moments[self.leaf_below(slot, depth + 1, centre)].add_sums(part);
                     } else {

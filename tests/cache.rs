@@ -182,29 +182,29 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((1, 2), &parts(&bytes)),
+        assemble((2, 0), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
-    // A 1.7 file with an optional section this reader does not know, and a longer META.
+    // A 2.7 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
     newer.insert(1, (99, 0, vec![1, 2, 3]));
-    let loaded = GuidingField::from_bytes(&assemble((1, 7), &newer)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((2, 7), &newer)).unwrap();
     assert_same(&field, &loaded);
     // An unknown section marked required is refused.
     let mut required = parts(&bytes);
     required.push((99, 1, vec![]));
     assert!(matches!(
-        GuidingField::from_bytes(&assemble((1, 7), &required)),
+        GuidingField::from_bytes(&assemble((2, 7), &required)),
         Err(CacheError::Corrupt {
             section: "sections",
             ..
         })
     ));
-    match GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))) {
+    match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((2, 0), (1, 2)));
+            assert_eq!((found, supported), ((3, 0), (2, 0)));
         }
         other => panic!("{other:?}"),
     }
@@ -219,7 +219,7 @@ fn forge(bytes: &[u8], kind: u32, at: usize, value: [u8; 4]) -> Result<GuidingFi
     let mut p = parts(bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == kind).unwrap().2;
     body[at..at + 4].copy_from_slice(&value);
-    GuidingField::from_bytes(&assemble((1, 0), &p))
+    GuidingField::from_bytes(&assemble((2, 0), &p))
 }
 
 #[test]
@@ -349,58 +349,33 @@ fn forged_files_with_valid_checksums_are_still_refused() {
 }
 
 #[test]
-fn the_version_one_file_still_loads() {
-    // Written by this library at format 1.0 (see `write_version_one_file` below). Whatever
-    // the format becomes, this file must keep loading with the same contents.
-    let path = "tests/data/v1.sdgc";
-    let field = GuidingField::load_from_path(path).unwrap();
-    let stats = field.stats();
-    assert_eq!(stats.iteration, 2);
-    assert_eq!(stats.rejected.non_finite_position, 1);
-    assert!(stats.spatial_leaves > 1 && stats.samples_recorded > 0);
-    // A 1.0 file predates shrinkage and refinement by gain, and keeps training without them.
-    assert_eq!(field.config().prior_samples, 0.0);
-    assert_eq!(field.config().refinement, Refinement::FluxShare);
-    // Nothing was lost in reading: written again (as the current minor version) and read back,
-    // it is the same field, and the 1.0 file's bytes are all still there.
-    let rewritten = field.to_bytes();
-    assert_eq!(
-        GuidingField::from_bytes(&rewritten).unwrap().to_bytes(),
-        rewritten
-    );
-    let (old, new) = (parts(&std::fs::read(path).unwrap()), parts(&rewritten));
-    assert_eq!(
-        old[0].2[..],
-        new[0].2[..old[0].2.len()],
-        "META's 1.0 fields"
-    );
-    assert_eq!(old[1..], new[1..3], "the trees");
-    let mut field = field;
-    field.refine();
-    assert_eq!(field.stats().iteration, 3);
+fn a_version_one_file_is_refused_with_a_typed_error() {
+    // Written by this library at format 1.0 (kept from then). Its trees
+    // are on the cylindrical map; read as 2.x they would guide toward other directions, so a
+    // 2.x reader refuses the file, with the versions in the error.
+    match GuidingField::load_from_path("tests/data/v1.sdgc") {
+        Err(CacheError::UnsupportedVersion { found, supported }) => {
+            assert_eq!((found, supported), ((1, 0), (2, 0)));
+        }
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]
-fn a_version_one_one_file_keeps_refining_by_flux_share() {
-    // A 1.1 writer: META without the refinement fields, no quadrant sums.
+fn a_file_without_the_refinement_fields_keeps_refining_by_flux_share() {
+    // META in its 1.1 layout (without the refinement fields), no quadrant sums: the reader
+    // takes the fields it needs at least and defaults the rest, as for any shorter META.
     let field = small_field();
     let mut old = parts(&field.to_bytes());
     old[0].2.truncate(184);
     old.retain(|p| p.0 != 5);
-    let loaded = GuidingField::from_bytes(&assemble((1, 1), &old)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((2, 0), &old)).unwrap();
     assert_eq!(loaded.config().refinement, Refinement::FluxShare);
     assert_eq!(
         loaded.config().gain_threshold,
         GuidingConfig::default().gain_threshold
     );
     assert_eq!(loaded.stats(), field.stats());
-}
-
-/// Regenerates `tests/data/v1.sdgc`: `cargo test -- --ignored write_version_one_file`.
-#[test]
-#[ignore = "writes the checked-in version-1 file"]
-fn write_version_one_file() {
-    small_field().save_to_path("tests/data/v1.sdgc").unwrap();
 }
 
 #[test]

@@ -121,7 +121,7 @@ fn box_recorded(s: Vec2, v: f32, p: f32) -> ([f64; 4], [u64; 4]) {
 }
 
 #[test]
-fn directional_box_shares_follow_the_overlap_and_wrap_at_the_seam() {
+fn directional_box_shares_follow_the_overlap_clipped_at_the_border() {
     let close = |s: [f64; 4], expected: [f64; 4]| {
         for q in 0..4 {
             assert!(
@@ -130,17 +130,22 @@ fn directional_box_shares_follow_the_overlap_and_wrap_at_the_seam() {
             );
         }
     };
-    // The leaf holding (0.3, 0.95) is the quadrant [0, 0.5) × [0.5, 1); the half-size square
-    // around the point covers x ∈ [0.05, 0.55), y ∈ [0.7, 1.2) = [0.7, 1) ∪ [0, 0.2).
-    // Shares: x 0.9 | 0.1, y 0.4 (wrapped, low half) | 0.6 (high half); v/p = 4.
-    let (s, n) = box_recorded(Vec2::new(0.3, 0.95), 2.0, 0.5);
+    // The leaf holding (0.3, 0.55) is the quadrant [0, 0.5) × [0.5, 1); the half-size square
+    // around the point covers x ∈ [0.05, 0.55), y ∈ [0.3, 0.8). Shares: x 0.9 | 0.1,
+    // y 0.4 | 0.6; v/p = 4.
+    let (s, n) = box_recorded(Vec2::new(0.3, 0.55), 2.0, 0.5);
     close(
         s,
         [0.9 * 0.4, 0.1 * 0.4, 0.9 * 0.6, 0.1 * 0.6].map(|f| 4.0 * f),
     );
     assert_eq!(n, [0, 0, 1, 0]);
-    // At the pole the square is clipped to x ∈ [0, 0.35) and the shares renormalized:
-    // y ∈ [0.15, 0.65) gives 0.7 below 0.5 and 0.3 above.
+    // The square's border folds onto itself (see `sphere`), so a square that crosses it is
+    // clipped and the shares renormalized: around (0.3, 0.95), y ∈ [0.7, 1) lies all in the
+    // upper half, x 0.9 | 0.1.
+    let (s, _) = box_recorded(Vec2::new(0.3, 0.95), 2.0, 0.5);
+    close(s, [0.0, 0.0, 4.0 * 0.9, 4.0 * 0.1]);
+    // Clipped in x too: around (0.1, 0.4), x ∈ [0, 0.35) and y ∈ [0.15, 0.65) give 0.7 below
+    // 0.5 and 0.3 above.
     let (s, _) = box_recorded(Vec2::new(0.1, 0.4), 1.0, 1.0);
     close(s, [0.7, 0.0, 0.3, 0.0]);
 }
@@ -223,10 +228,10 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
         ));
     }
     field.refine();
-    // A sample at (0.45, 0.25) in the dark quadrant: the square [0.2, 0.7) × [0, 0.5) lies
-    // 60% in its own leaf and 40% in the subdivided quadrant, which takes it in the leaf that
-    // holds the overlap's centre (0.6, 0.25).
-    let d = square_to_direction(Vec2::new(0.45, 0.25));
+    // A sample at (0.45, 0.2) in the dark quadrant: the square [0.2, 0.7) × [0, 0.45) (clipped
+    // at the border) lies 60% in its own leaf and 40% in the subdivided quadrant, which takes
+    // it in the leaf that holds the overlap's centre (0.6, 0.225).
+    let d = square_to_direction(Vec2::new(0.45, 0.2));
     field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
     let cell = field.cells().next().unwrap();
     let contains = |l: &sdguide::DirectionalCell, x: f32, y: f32| {
@@ -239,11 +244,11 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
             continue;
         }
         found += 1;
-        if contains(&leaf, 0.45, 0.25) {
+        if contains(&leaf, 0.45, 0.2) {
             assert_eq!(leaf.size, 0.5, "the dark quadrant is one leaf");
             assert!((m.sum - 0.6).abs() < 1e-6 && m.count == 1, "{leaf:?} {m:?}");
         } else {
-            assert!(leaf.size < 0.5 && contains(&leaf, 0.6, 0.25), "{leaf:?}");
+            assert!(leaf.size < 0.5 && contains(&leaf, 0.6, 0.225), "{leaf:?}");
             assert!((m.sum - 0.4).abs() < 1e-6 && m.count == 0, "{leaf:?} {m:?}");
         }
     }

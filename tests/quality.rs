@@ -32,13 +32,26 @@ fn trained_with(field: &TestField, config: GuidingConfig) -> (GuidingField, Repo
     (trained.field, report)
 }
 
+/// Training seeds the equal-node comparison averages over.
+const SEEDS: [u64; 4] = [1, 2, 3, 4];
+
 #[test]
 fn variance_gain_beats_flux_share_at_equal_node_counts() {
     // Both criteria split as much as a node budget per directional tree allows (thresholds far
     // below anything the light reaches), so both spend the same nodes; what differs is where.
+    //
+    // The claim is about the criteria, not one training run: on the noisy sharp lobe one run's
+    // relvar moves by 10–25% between training seeds (a few leaves are decided by a handful of
+    // rare large values), more than the criteria differ. So each side is the mean over four
+    // seeds, evaluated at 64 held-out positions per cell (the same positions for both; the
+    // oracle, which needs more, is not compared here).
+    let holdout = Holdout {
+        positions: 64,
+        ..Holdout::default()
+    };
     for nodes in [60, 120] {
         for field in TestField::all() {
-            let report = |refinement| {
+            let mean = |refinement| {
                 let config = GuidingConfig {
                     refinement,
                     subdivision_threshold: 1e-6,
@@ -46,25 +59,27 @@ fn variance_gain_beats_flux_share_at_equal_node_counts() {
                     max_directional_nodes: nodes,
                     ..GuidingConfig::default()
                 };
-                trained_with(&field, config).1
+                let (mut relvar, mut leaves) = (0.0, 0.0);
+                for seed in SEEDS {
+                    let mut field = field.clone();
+                    field.workload.seed = seed;
+                    let trained = quality::train(&field, config.clone(), BUDGET).unwrap();
+                    let report = trained.evaluate(&field, holdout);
+                    relvar += report.variances.learned / SEEDS.len() as f64;
+                    leaves += report.directional_leaves / SEEDS.len() as f64;
+                }
+                (relvar, leaves)
             };
-            let (flux, gain) = (
-                report(Refinement::FluxShare),
-                report(Refinement::VarianceGain),
-            );
+            let (flux, gain) = (mean(Refinement::FluxShare), mean(Refinement::VarianceGain));
             assert!(
-                gain.directional_leaves <= flux.directional_leaves,
-                "{}, {nodes} nodes: {gain:?} vs {flux:?}",
+                gain.1 <= flux.1,
+                "{}, {nodes} nodes: leaves {gain:?} vs {flux:?}",
                 field.name
             );
-            // Exact variances (quadrature) of fields trained with fixed seeds; the smallest
-            // margin measured is 4%, far outside the quadrature's error (< 0.1%).
             assert!(
-                gain.variances.learned < flux.variances.learned,
-                "{}, {nodes} nodes: gain {:?} vs flux {:?}",
-                field.name,
-                gain.variances,
-                flux.variances
+                gain.0 < flux.0,
+                "{}, {nodes} nodes: relvar and leaves, gain {gain:?} vs flux {flux:?}",
+                field.name
             );
         }
     }
