@@ -6,8 +6,8 @@
 //!
 //! The heat map shows the directional distribution at the position on the equal-area square
 //! (the octahedral map: +z at the centre, −z at the corners, ±x at the middles of the right and
-//! left sides, ±y at the top and bottom), coloured by
-//! log₁₀ of the density relative to uniform, with the quadtree's leaf borders drawn in grey.
+//! left sides, ±y at the top and bottom), coloured by log₁₀ of the density relative to uniform,
+//! with the quadtree's leaf borders drawn in grey.
 
 use glam::{Vec2, Vec3};
 use sdguide::GuidingField;
@@ -118,7 +118,7 @@ fn heat_map(
 ) -> Result<(), Box<dyn std::error::Error>> {
     let n = size as usize;
     let mut rgb = vec![0u8; n * n * 3];
-    // Rows top to bottom are φ from 2π down to 0; columns are s.x from 0 to 1.
+    // Rows top to bottom are s.y from 1 down to 0; columns are s.x from 0 to 1.
     for row in 0..n {
         for col in 0..n {
             let s = Vec2::new(

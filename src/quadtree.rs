@@ -382,25 +382,23 @@ impl RecordingTree {
         if area <= 0.0 {
             return self.record_sums(s, (w1, w2));
         }
-        // 1. Down to the deepest node whose cell holds the whole square .
+        // 1. Down to the deepest node whose cell holds the whole square.
         let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
         let mut depth = 0;
-        {
-            loop {
-                let half = 0.5 * cell;
-                let (ix, iy) = (usize::from(x0 >= ox + half), usize::from(y0 >= oy + half));
-                let (cx, cy) = (ox + ix as f64 * half, oy + iy as f64 * half);
-                let slot = self.nodes[node as usize][ix | iy << 1];
-                if x1 > cx + half || y1 > cy + half || slot & LEAF_BIT != 0 {
-                    break;
-                }
-                (node, ox, oy, cell) = (slot, cx, cy, half);
-                depth += 1;
+        loop {
+            let half = 0.5 * cell;
+            let (ix, iy) = (usize::from(x0 >= ox + half), usize::from(y0 >= oy + half));
+            let (cx, cy) = (ox + ix as f64 * half, oy + iy as f64 * half);
+            let slot = self.nodes[node as usize][ix | iy << 1];
+            if x1 > cx + half || y1 > cy + half || slot & LEAF_BIT != 0 {
+                break;
             }
+            (node, ox, oy, cell) = (slot, cx, cy, half);
+            depth += 1;
         }
         // 2. Level by level below it, down to cells of the square's size. The square overlaps
-        //    at most 2 × 2 cells of any level at least its size (its copies across the seam
-        //    included), so each level holds at most 4 cells.
+        //    at most 2 × 2 cells of any level at least its size, so each level holds at most 4
+        //    cells.
         let mut level = [(node, ox, oy); 4];
         let mut cells = 1;
         while cells > 0 {

@@ -157,8 +157,11 @@ fn step(workload: &Workload, x: Vec3, cell: &DirectionalCell) -> f64 {
         .map(|l| l.kappa)
         .chain(workload.bsdf.map(|b| b.kappa))
         .map(|kappa| 0.5 / f64::from(kappa).sqrt())
-        .fold(0.25, f64::min)
+        .fold(COARSE_STEP, f64::min)
 }
+
+/// The quadrature step where no lobe comes near a cell (radians).
+const COARSE_STEP: f64 = 0.25;
 
 /// The two Gauss–Legendre nodes of `[a, a + n·h)`'s `i`-th step, each of weight `h/2`.
 fn gauss_nodes(a: f64, h: f64, i: usize) -> [f64; 2] {
@@ -171,7 +174,7 @@ fn gauss_nodes(a: f64, h: f64, i: usize) -> [f64; 2] {
 /// Gauss–Legendre product rule on the equal-area square (whose Jacobian is the constant 4π),
 /// with steps of at most half the width of the sharpest lobe near the cell, measured on the
 /// sphere. The map is smooth inside each octant; panels the equator's diamond crosses (a kink)
-/// get a rule four times finer per axis. Cells larger than 1/8 of the square are split first.
+/// get a rule four times finer per axis where a sharp lobe is near. Cells larger than 1/8 of the square are split first.
 ///
 /// ```
 /// use sdguide::quality::{TestField, cell_integrals};
@@ -221,8 +224,8 @@ fn quadrature(workload: &Workload, x: Vec3, cell: &DirectionalCell, f: &mut impl
         ex = ex.max(angle(point(0, k), point(1, k)) + angle(point(1, k), point(2, k)));
         ey = ey.max(angle(point(k, 0), point(k, 1)) + angle(point(k, 1), point(k, 2)));
     }
-    let nx = (1.25 * ex / h).ceil().max(1.0) as usize;
-    let ny = (1.25 * ey / h).ceil().max(1.0) as usize;
+    let nx = (ex / h).ceil().max(1.0) as usize;
+    let ny = (ey / h).ceil().max(1.0) as usize;
     let size = f64::from(cell.size);
     let (dx, dy) = (size / nx as f64, size / ny as f64);
     let (ox, oy) = (f64::from(cell.origin.x), f64::from(cell.origin.y));
@@ -230,8 +233,9 @@ fn quadrature(workload: &Workload, x: Vec3, cell: &DirectionalCell, f: &mut impl
         for j in 0..ny {
             let (x0, y0) = (ox + i as f64 * dx, oy + j as f64 * dy);
             // The map is smooth inside each octant; a panel the equator's diamond
-            // `|u| + |v| = 1` cuts has a kink, so it gets a finer rule.
-            let k = if crosses_equator(x0, y0, dx, dy) {
+            // `|u| + |v| = 1` cuts has a kink, so it gets a finer rule where a sharp lobe is
+            // near (elsewhere the light is too smooth for the kink to matter).
+            let k = if h < COARSE_STEP && crosses_equator(x0, y0, dx, dy) {
                 EQUATOR_PANELS
             } else {
                 1
