@@ -81,6 +81,15 @@ fn normalize_rescaled(d: Vec3) -> Option<Vec3> {
 
 /// Maps any finite non-zero direction (not necessarily unit) to its point on the unit square, or
 /// `None` for a zero or non-finite one.
+///
+/// ```
+/// use sdguide::sphere::{direction_to_square, square_of};
+/// use glam::Vec3;
+/// let d = Vec3::new(1.0, 2.0, 2.0);
+/// let s = square_of(d).unwrap();
+/// assert!((s - direction_to_square(d / 3.0)).abs().max_element() < 1e-6);
+/// assert_eq!(square_of(Vec3::ZERO), None);
+/// ```
 #[inline]
 pub fn square_of(d: Vec3) -> Option<Vec2> {
     let len2 = d.length_squared();
@@ -90,7 +99,16 @@ pub fn square_of(d: Vec3) -> Option<Vec2> {
     normalize_rescaled(d).map(direction_to_square)
 }
 
-/// Maps a unit direction to its point on the unit square.
+/// Maps a unit direction to its point on the unit square (clamped into `[0, 1)²` against
+/// rounding).
+///
+/// ```
+/// use sdguide::sphere::{direction_to_square, square_to_direction};
+/// use glam::Vec3;
+/// let d = Vec3::new(0.3, -0.4, 0.5).normalize();
+/// let back = square_to_direction(direction_to_square(d));
+/// assert!((back - d).length() < 1e-6);
+/// ```
 #[inline]
 pub fn direction_to_square(d: Vec3) -> Vec2 {
     let (ax, ay, az) = (d.x.abs(), d.y.abs(), d.z.abs());
@@ -120,7 +138,8 @@ pub fn direction_to_square(d: Vec3) -> Vec2 {
     )
 }
 
-/// `atan(t)` for `t ∈ [0, 1]`.
+/// `atan(t)` for `t ∈ [0, 1]`, to within 2·10⁻⁷ rad (tested against `f64`): the
+/// minimax-fitted odd polynomial `t·P(t²)` of degree 15 (fit error 3.8·10⁻⁸).
 #[inline]
 fn atan01(t: f32) -> f32 {
     const C: [f32; 8] = [
@@ -144,6 +163,14 @@ fn atan01(t: f32) -> f32 {
 }
 
 /// Maps a point of the unit square to its unit direction.
+///
+/// ```
+/// use sdguide::sphere::square_to_direction;
+/// use glam::{Vec2, Vec3};
+/// // +z is the centre of the square, −z each of its corners.
+/// assert!((square_to_direction(Vec2::new(0.5, 0.5)) - Vec3::Z).length() < 1e-6);
+/// assert!((square_to_direction(Vec2::new(1.0, 0.0)) + Vec3::Z).length() < 1e-6);
+/// ```
 #[inline]
 pub fn square_to_direction(s: Vec2) -> Vec3 {
     let (u, v) = (2.0 * s.x - 1.0, 2.0 * s.y - 1.0);
