@@ -174,7 +174,8 @@ fn gauss_nodes(a: f64, h: f64, i: usize) -> [f64; 2] {
 /// Gauss–Legendre product rule on the equal-area square (whose Jacobian is the constant 4π),
 /// with steps of at most half the width of the sharpest lobe near the cell, measured on the
 /// sphere. The map is smooth inside each octant; panels the equator's diamond crosses (a kink)
-/// get a rule four times finer per axis where a sharp lobe is near. Cells larger than 1/8 of the square are split first.
+/// get a rule four times finer per axis where a sharp lobe is near. Cells larger than
+/// 1/8 of the square are split first.
 ///
 /// ```
 /// use sdguide::quality::{TestField, cell_integrals};
@@ -208,7 +209,7 @@ pub fn cell_integrals(
 
 /// Calls `f(direction, weight)` for the nodes of [`cell_integrals`]'s rule over `cell`, at `x`.
 fn quadrature(workload: &Workload, x: Vec3, cell: &DirectionalCell, f: &mut impl FnMut(Vec3, f64)) {
-    if cell.size > 0.125 {
+    if cell.size > MAX_RULE_CELL {
         for q in 0..4 {
             quadrature(workload, x, &cell.child(q), f);
         }
@@ -257,6 +258,10 @@ fn quadrature(workload: &Workload, x: Vec3, cell: &DirectionalCell, f: &mut impl
         }
     }
 }
+
+/// The largest cell (side, on the square) one product rule spans: its extent, measured from a
+/// 3 × 3 grid of its points, must be local for the step count to follow the map's stretch.
+const MAX_RULE_CELL: f32 = 0.125;
 
 /// Sub-panels per axis of a quadrature panel the equator crosses.
 const EQUATOR_PANELS: usize = 4;
