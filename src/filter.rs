@@ -13,11 +13,13 @@
 //!   centred on the position, overlaps, weighted by the overlapped volume.
 //! - [`DirectionalFilter::Box`] adds the sample to every directional leaf that a square the size
 //!   of its leaf, centred on its point of the equal-area square, overlaps, weighted by the
-//!   overlapped area. At the border of the square, where the octahedral map folds onto itself
-//!   (see [`sphere`](crate::sphere)), the square is clipped.
+//!   overlapped area. Where the square crosses the border of the unit square, the part outside
+//!   is folded back in as the octahedral map folds the sphere (see
+//!   [`sphere`](crate::sphere)): the directions just past the border are those just inside it,
+//!   mirrored through the side's midpoint, so the sample reaches its neighbours on the sphere.
 //!
-//! Footprints are clipped to the domain and the weights renormalized, so every filter records a
-//! sample's whole weight. Sample *counts* (which drive spatial splits and the shrinkage of sparse
+//! Spatial footprints are clipped to the cube and the weights renormalized, so every filter
+//! records a sample's whole weight. Sample *counts* (which drive spatial splits and the shrinkage of sparse
 //! cells) go to the cell containing the sample only.
 
 use glam::Vec3;

@@ -20,7 +20,7 @@ use crate::filter::overlap;
 use crate::moments::{AtomicMoments, AtomicQuadrants};
 use crate::refinement::{MIN_SPLIT_SAMPLES, Refinement, split_gain};
 use crate::selection::GuideSelection;
-use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
+use crate::sphere::{self, ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
 use glam::Vec2;
 use std::cmp::Ordering;
@@ -357,14 +357,16 @@ impl RecordingTree {
     }
 
     /// Adds weights `(v/p, v²/p)` to the cells that a square the size of the leaf holding `s`,
-    /// centred on `s`, overlaps, in proportion to the overlap (clipped at the square's border,
-    /// where the map folds). A leaf gets its share; a region the square overlaps that
-    /// is subdivided more finely than the square gets its share in the one leaf holding the
-    /// centre of the overlap — the filter smooths at the scale of the sample's own leaf, so the
-    /// work per sample is bounded (a few cells) however fine the neighbourhood.
+    /// centred on `s`, overlaps, in proportion to the overlap. Where the square crosses the
+    /// border of the unit square, the part outside is folded back in as the map folds the
+    /// sphere ([`sphere::fold_box`]), so the sample reaches its neighbours on the sphere. A leaf
+    /// gets its share; a region the square overlaps that is subdivided more finely than the
+    /// square gets its share in the one leaf holding the centre of the overlap — the filter
+    /// smooths at the scale of the sample's own leaf, so the work per sample is bounded (a few
+    /// cells per piece) however fine the neighbourhood.
     ///
-    /// No allocation: the walk starts at the deepest node whose cell holds the whole square and
-    /// goes down level by level, at most 4 cells at a time.
+    /// No allocation: for each piece the walk starts at the deepest node whose cell holds the
+    /// whole piece and goes down level by level, at most 4 cells at a time.
     pub(crate) fn record_box_sums(&self, s: Vec2, weights: (f64, f64)) {
         self.splat(s, self.leaf_of(s).1, weights);
     }
@@ -374,15 +376,29 @@ impl RecordingTree {
         if w1 == 0.0 {
             return;
         }
-        // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
         let (sx, sy) = (f64::from(s.x), f64::from(s.y));
-        let (x0, x1) = ((sx - 0.5 * size).max(0.0), (sx + 0.5 * size).min(1.0));
-        let (y0, y1) = ((sy - 0.5 * size).max(0.0), (sy + 0.5 * size).min(1.0));
-        let area = (x1 - x0) * (y1 - y0);
+        let h = 0.5 * size;
+        let area = size * size;
         if area <= 0.0 {
             return self.record_sums(s, (w1, w2));
         }
-        // 1. Down to the deepest node whose cell holds the whole square.
+        // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
+        let per_area = (w1 / area, w2 / area);
+        for [x, y] in sphere::fold_box([sx - h, sx + h], [sy - h, sy + h])
+            .into_iter()
+            .flatten()
+        {
+            if x[1] > x[0] && y[1] > y[0] {
+                self.splat_piece(x, y, size, per_area);
+            }
+        }
+    }
+
+    /// Adds `per_area` times the overlapped area to the cells that the piece `[x0, x1) ×
+    /// [y0, y1)` of the unit square overlaps (see [`splat`](Self::splat); `size` is the
+    /// filter's square's side).
+    fn splat_piece(&self, [x0, x1]: [f64; 2], [y0, y1]: [f64; 2], size: f64, (w1, w2): (f64, f64)) {
+        // 1. Down to the deepest node whose cell holds the whole piece.
         let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
         let mut depth = 0;
         loop {
@@ -396,9 +412,9 @@ impl RecordingTree {
             (node, ox, oy, cell) = (slot, cx, cy, half);
             depth += 1;
         }
-        // 2. Level by level below it, down to cells of the square's size. The square overlaps
-        //    at most 2 × 2 cells of any level at least its size, so each level holds at most 4
-        //    cells.
+        // 2. Level by level below it, down to cells of the square's size. The piece, no larger
+        //    than the square, overlaps at most 2 × 2 cells of any level at least the square's
+        //    size, so each level holds at most 4 cells.
         let mut level = [(node, ox, oy); 4];
         let mut cells = 1;
         while cells > 0 {
@@ -413,8 +429,7 @@ impl RecordingTree {
                     if fx <= 0.0 || fy <= 0.0 {
                         continue;
                     }
-                    let share = fx * fy / area;
-                    let part = (w1 * share, w2 * share);
+                    let part = (w1 * fx * fy, w2 * fx * fy);
                     if slot & LEAF_BIT != 0 {
                         self.moments[(slot & !LEAF_BIT) as usize].add_sums(part);
                     } else if half <= size || pending == next.len() {

@@ -184,6 +184,43 @@ pub fn square_to_direction(s: Vec2) -> Vec3 {
     Vec3::new(cos_phi.copysign(u) * k, sin_phi.copysign(v) * k, z)
 }
 
+/// The pieces of the unit square that the box `[x0, x1) × [y0, y1)` covers on the sphere, when
+/// the box may cross the square's border (by less than 1 on each axis): the part inside, and
+/// each part outside folded back in as the map folds it. A point just past a side is the mirror
+/// image, through that side's midpoint, of a point just inside (`(1 + e, y)` is `(1 − e, 1 − y)`);
+/// a point past a corner is the point one square away diagonally (`(1 + a, 1 + b)` is `(a, b)`:
+/// all four corners are `−z`). Each piece has the area of the part it comes from, so together
+/// they have the box's area. `None` for parts the box does not have.
+///
+/// The directional box filter spreads a sample over these pieces, so a sample near the border
+/// reaches the leaves that are its neighbours on the sphere.
+pub(crate) fn fold_box(x: [f64; 2], y: [f64; 2]) -> [Option<[[f64; 2]; 2]>; 4] {
+    let (xi, xo) = fold_axis(x);
+    let (yi, yo) = fold_axis(y);
+    let mirror = |[a, b]: [f64; 2]| [1.0 - b, 1.0 - a];
+    [
+        Some([xi, yi]),
+        xo.map(|(reflected, _)| [reflected, mirror(yi)]),
+        yo.map(|(reflected, _)| [mirror(xi), reflected]),
+        xo.zip(yo).map(|((_, tx), (_, ty))| [tx, ty]),
+    ]
+}
+
+/// One axis of [`fold_box`]: the part of `[a, b)` inside `[0, 1)`, and the part outside, both as
+/// a side's fold reflects it (`x → −x` or `2 − x`) and as a corner's shift moves it (`x → x ± 1`).
+#[allow(clippy::type_complexity, reason = "two intervals, named in the doc")]
+fn fold_axis([a, b]: [f64; 2]) -> ([f64; 2], Option<([f64; 2], [f64; 2])>) {
+    let inside = [a.max(0.0), b.min(1.0)];
+    let outside = if a < 0.0 {
+        Some(([0.0, -a], [a + 1.0, 1.0]))
+    } else if b > 1.0 {
+        Some(([2.0 - b, 1.0], [0.0, b - 1.0]))
+    } else {
+        None
+    };
+    (inside, outside)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -204,6 +241,66 @@ mod tests {
         // The border folds at its midpoints: (u, 1) and (−u, 1) are the same direction.
         assert!((at(0.2, 1.0) - at(0.8, 1.0)).length() < 1e-6);
         assert!((at(1.0, 0.3) - at(1.0, 0.7)).length() < 1e-6);
+    }
+
+    #[test]
+    fn a_box_across_the_border_folds_onto_its_neighbourhood_on_the_sphere() {
+        // Boxes of half-size 0.1 around points near a side, near a corner, and inside. The
+        // pieces lie in the square and keep the box's area; and every direction within 0.1 rad
+        // of the centre's direction lands in a piece. Away from the fold the inverse map moves
+        // a point of the square by at most about 0.42 (in each coordinate) per radian (measured
+        // on 400k random pairs of nearby directions), so the cap lies within 0.042 of the
+        // centre: well inside the box, once the box is folded. Clipping instead of folding
+        // leaves out the part of the cap across the border.
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for centre in [
+            [0.3, 0.97],
+            [0.98, 0.6],
+            [0.02, 0.45],
+            [0.55, 0.01],
+            [0.97, 0.98],
+            [0.03, 0.02],
+            [0.5, 0.5],
+        ] {
+            let (x, y) = (
+                [centre[0] - 0.1, centre[0] + 0.1],
+                [centre[1] - 0.1, centre[1] + 0.1],
+            );
+            let pieces: Vec<_> = fold_box(x, y).into_iter().flatten().collect();
+            let area: f64 = pieces
+                .iter()
+                .map(|[a, b]| (a[1] - a[0]) * (b[1] - b[0]))
+                .sum();
+            assert!((area - 0.04).abs() < 1e-12, "{centre:?}: area {area}");
+            for [a, b] in &pieces {
+                assert!(
+                    a[0] >= 0.0 && a[1] <= 1.0 && b[0] >= 0.0 && b[1] <= 1.0,
+                    "{pieces:?}"
+                );
+            }
+            let d = square_to_direction(Vec2::new(centre[0] as f32, centre[1] as f32));
+            // An orthonormal frame around d, and directions at angles up to 0.1 rad from it.
+            let t = if d.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+            let (e1, e2) = (d.cross(t).normalize(), d.cross(d.cross(t).normalize()));
+            for _ in 0..2000 {
+                let (theta, phi) = (0.1 * next(), 2.0 * PI * next());
+                let w = d * theta.cos() + (e1 * phi.cos() + e2 * phi.sin()) * theta.sin();
+                let p = direction_to_square(w.normalize());
+                let (px, py) = (f64::from(p.x), f64::from(p.y));
+                assert!(
+                    pieces
+                        .iter()
+                        .any(|[a, b]| (a[0]..=a[1]).contains(&px) && (b[0]..=b[1]).contains(&py)),
+                    "{centre:?}: {w} at {p} lies in no piece of {pieces:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -121,7 +121,7 @@ fn box_recorded(s: Vec2, v: f32, p: f32) -> ([f64; 4], [u64; 4]) {
 }
 
 #[test]
-fn directional_box_shares_follow_the_overlap_clipped_at_the_border() {
+fn directional_box_shares_follow_the_overlap_folded_at_the_border() {
     let close = |s: [f64; 4], expected: [f64; 4]| {
         for q in 0..4 {
             assert!(
@@ -139,15 +139,22 @@ fn directional_box_shares_follow_the_overlap_clipped_at_the_border() {
         [0.9 * 0.4, 0.1 * 0.4, 0.9 * 0.6, 0.1 * 0.6].map(|f| 4.0 * f),
     );
     assert_eq!(n, [0, 0, 1, 0]);
-    // The square's border folds onto itself (see `sphere`), so a square that crosses it is
-    // clipped and the shares renormalized: around (0.3, 0.95), y ∈ [0.7, 1) lies all in the
-    // upper half, x 0.9 | 0.1.
+    // The square's border folds onto itself at each side's midpoint (see `sphere`): around
+    // (0.3, 0.95) the square is [0.05, 0.55) × [0.7, 1.2). Inside, [0.7, 1) × x 0.45 | 0.05
+    // (areas 0.135 | 0.015); the part past the top, [1, 1.2), folds to y ∈ [0.8, 1) with x
+    // mirrored to [0.45, 0.95): x 0.05 | 0.45 (areas 0.01 | 0.09). Of 0.25: 0.58 | 0.42.
     let (s, _) = box_recorded(Vec2::new(0.3, 0.95), 2.0, 0.5);
-    close(s, [0.0, 0.0, 4.0 * 0.9, 4.0 * 0.1]);
-    // Clipped in x too: around (0.1, 0.4), x ∈ [0, 0.35) and y ∈ [0.15, 0.65) give 0.7 below
-    // 0.5 and 0.3 above.
+    close(s, [0.0, 0.0, 4.0 * 0.58, 4.0 * 0.42]);
+    // Past the left side: around (0.1, 0.4), [−0.15, 0.35) × [0.15, 0.65). Inside,
+    // x ∈ [0, 0.35) with y 0.35 | 0.15 (areas 0.1225 | 0.0525); past the side, x ∈ [0, 0.15)
+    // with y mirrored to [0.35, 0.85): 0.15 | 0.35 (0.0225 | 0.0525). Of 0.25: 0.58 | 0.42.
     let (s, _) = box_recorded(Vec2::new(0.1, 0.4), 1.0, 1.0);
-    close(s, [0.7, 0.0, 0.3, 0.0]);
+    close(s, [0.58, 0.0, 0.42, 0.0]);
+    // Past a corner (−z, where all four corners meet): around (0.95, 0.95), [0.7, 1.2)². Inside
+    // 0.3 × 0.3 in q3; past the right side 0.2 × 0.3 folded to x ∈ [0.8, 1), y ∈ [0, 0.3) (q1);
+    // past the top the same in q2; past the corner 0.2 × 0.2 at [0, 0.2)² (q0).
+    let (s, _) = box_recorded(Vec2::new(0.95, 0.95), 1.0, 1.0);
+    close(s, [0.04, 0.06, 0.06, 0.09].map(|a| a / 0.25));
 }
 
 #[test]
@@ -228,9 +235,11 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
         ));
     }
     field.refine();
-    // A sample at (0.45, 0.2) in the dark quadrant: the square [0.2, 0.7) × [0, 0.45) (clipped
-    // at the border) lies 60% in its own leaf and 40% in the subdivided quadrant, which takes
-    // it in the leaf that holds the overlap's centre (0.6, 0.225).
+    // A sample at (0.45, 0.2) in the dark quadrant: the square [0.2, 0.7) × [−0.05, 0.45)
+    // lies 0.135 in its own leaf and 0.09 in the subdivided quadrant, which takes it in the leaf
+    // that holds the overlap's centre (0.6, 0.225). The part past the bottom folds to
+    // [0.3, 0.8) × [0, 0.05): 0.01 in its own leaf, 0.015 in the leaf holding (0.65, 0.025) — the
+    // same dark leaf [0.5, 0.75) × [0, 0.25). Of 0.25: 58% and 42%.
     let d = square_to_direction(Vec2::new(0.45, 0.2));
     field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
     let cell = field.cells().next().unwrap();
@@ -246,10 +255,17 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
         found += 1;
         if contains(&leaf, 0.45, 0.2) {
             assert_eq!(leaf.size, 0.5, "the dark quadrant is one leaf");
-            assert!((m.sum - 0.6).abs() < 1e-6 && m.count == 1, "{leaf:?} {m:?}");
+            assert!(
+                (m.sum - 0.58).abs() < 1e-6 && m.count == 1,
+                "{leaf:?} {m:?}"
+            );
         } else {
             assert!(leaf.size < 0.5 && contains(&leaf, 0.6, 0.225), "{leaf:?}");
-            assert!((m.sum - 0.4).abs() < 1e-6 && m.count == 0, "{leaf:?} {m:?}");
+            assert!(contains(&leaf, 0.65, 0.025), "{leaf:?}");
+            assert!(
+                (m.sum - 0.42).abs() < 1e-6 && m.count == 0,
+                "{leaf:?} {m:?}"
+            );
         }
     }
     assert_eq!(found, 2);
