@@ -18,9 +18,10 @@
 //!   [`sphere`](crate::sphere)): the directions just past the border are those just inside it,
 //!   mirrored through the side's midpoint, so the sample reaches its neighbours on the sphere.
 //!
-//! Spatial footprints are clipped to the cube and the weights renormalized, so every filter
-//! records a sample's whole weight. Sample *counts* (which drive spatial splits and the shrinkage of sparse
-//! cells) go to the cell containing the sample only.
+//! Spatial footprints are clipped to the cube and the weights renormalized, and directional
+//! ones keep their area by folding, so every filter records a sample's whole weight. Sample
+//! *counts* (which drive spatial splits and the shrinkage of sparse cells) go to the cell
+//! containing the sample only.
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
