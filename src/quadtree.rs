@@ -139,6 +139,26 @@ impl DirectionalCell {
         f64::from(self.size) * f64::from(self.size)
     }
 
+    /// Whether the cell holds the point `s` of the unit square (its lower sides in, its upper
+    /// sides out, as the quadtree descends). With [`sphere::direction_to_square`], this finds
+    /// the leaf that holds a direction among a distribution's
+    /// [`leaves`](crate::DirectionalDistribution::leaves).
+    ///
+    /// ```
+    /// use glam::Vec2;
+    /// use sdguide::DirectionalCell;
+    /// let cell = DirectionalCell { origin: Vec2::new(0.5, 0.25), size: 0.25, depth: 2 };
+    /// assert!(cell.contains(Vec2::new(0.5, 0.25)));
+    /// assert!(cell.contains(Vec2::new(0.7, 0.4)));
+    /// assert!(!cell.contains(Vec2::new(0.75, 0.3)));
+    /// ```
+    ///
+    /// [`sphere::direction_to_square`]: crate::sphere::direction_to_square
+    pub fn contains(&self, s: Vec2) -> bool {
+        let (lo, hi) = (self.origin, self.origin + Vec2::splat(self.size));
+        s.cmpge(lo).all() && s.cmplt(hi).all()
+    }
+
     pub(crate) fn child(&self, q: usize) -> DirectionalCell {
         let half = 0.5 * self.size;
         let offset = Vec2::new((q & 1) as f32, (q >> 1) as f32) * half;

@@ -243,10 +243,7 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
     let d = square_to_direction(Vec2::new(0.45, 0.2));
     field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
     let cell = field.cells().next().unwrap();
-    let contains = |l: &sdguide::DirectionalCell, x: f32, y: f32| {
-        (l.origin.x..l.origin.x + l.size).contains(&x)
-            && (l.origin.y..l.origin.y + l.size).contains(&y)
-    };
+    let contains = |l: &sdguide::DirectionalCell, x, y| l.contains(Vec2::new(x, y));
     let mut found = 0;
     for (leaf, m) in cell.recorded() {
         if m.sum == 0.0 {

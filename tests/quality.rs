@@ -172,13 +172,7 @@ fn the_learned_estimator_is_unbiased_and_its_exact_variance_matches_monte_carlo(
             // r's solid-angle density in the leaf holding `d`.
             let r_density = |d: glam::Vec3| {
                 let s = sdguide::sphere::direction_to_square(d);
-                let k = cells
-                    .iter()
-                    .position(|c| {
-                        (c.origin.x..c.origin.x + c.size).contains(&s.x)
-                            && (c.origin.y..c.origin.y + c.size).contains(&s.y)
-                    })
-                    .unwrap();
+                let k = cells.iter().position(|c| c.contains(s)).unwrap();
                 roots[k] / total / (four_pi * cells[k].area())
             };
             let (mut t1, mut t2) = (0.0f64, 0.0f64);
