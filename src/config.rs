@@ -37,7 +37,7 @@ pub struct GuidingConfig {
     pub subdivision_threshold: f32,
     /// `τ` of [`Refinement::VarianceGain`]: a directional cell is subdivided when splitting it
     /// lowers the tree's `Σ sqrt(m)` by more than `τ` times it, and collapsed when it does not
-    /// (default 0.0015). Must be in `(0, 1)`.
+    /// (default 0.0007). Must be in `(0, 1)`.
     pub gain_threshold: f32,
     /// Deepest directional level (default and maximum [`MAX_DIRECTIONAL_DEPTH`]). Must be ≥ 1.
     pub max_directional_depth: u32,
@@ -78,7 +78,7 @@ impl Default for GuidingConfig {
             spatial_threshold: 12000.0,
             refinement: Refinement::VarianceGain,
             subdivision_threshold: 0.01,
-            gain_threshold: 0.0015,
+            gain_threshold: 0.0007,
             max_directional_depth: MAX_DIRECTIONAL_DEPTH,
             uniform_fraction: 0.01,
             max_directional_nodes: 8192,

@@ -18,7 +18,7 @@
 
 use crate::filter::overlap;
 use crate::moments::{AtomicMoments, AtomicQuadrants};
-use crate::refinement::{MIN_SPLIT_SAMPLES, Refinement, split_gain};
+use crate::refinement::{MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, Refinement, split_gain};
 use crate::selection::GuideSelection;
 use crate::sphere::{self, ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
@@ -631,8 +631,9 @@ impl RecordingTree {
             }
             subtree[i] = acc;
         }
-        // A cell that saw fewer than MIN_SPLIT_SAMPLES samples does not split.
-        let enough = |n: u64, key: f64| if n >= MIN_SPLIT_SAMPLES { key } else { 0.0 };
+        // A cell that saw fewer than `least` samples does not split: MIN_SPLIT_SAMPLES for
+        // cells of the ended iteration, MIN_PREDICTED_SPLIT_SAMPLES for a leaf's quadrants.
+        let enough = |n: u64, least: u64, key: f64| if n >= least { key } else { 0.0 };
         let mut slot = vec![[0.0f64; 4]; self.nodes.len()];
         let mut below_leaf = vec![[0.0f64; 4]; self.moments.len()];
         let mut total = 0.0;
@@ -648,16 +649,21 @@ impl RecordingTree {
                     // One level's gain, or what the whole known subtree gained per node spent
                     // if that is more: a split that pays only further down is kept.
                     let (gain, nodes, n) = subtree[s as usize];
-                    enough(n, node_gain[s as usize].max(gain / nodes))
+                    enough(
+                        n,
+                        MIN_SPLIT_SAMPLES,
+                        node_gain[s as usize].max(gain / nodes),
+                    )
                 } else {
                     let k = (s & !LEAF_BIT) as usize;
                     let e = split_gain(&quadrants[k], params.prior_samples, parent);
                     let r = slot_root(i, s);
                     total += r;
                     below_leaf[k] = std::array::from_fn(|c| {
-                        enough(quadrants[k][c].1, r * e.fractions[c] * e.relative_gain)
+                        let key = r * e.fractions[c] * e.relative_gain;
+                        enough(quadrants[k][c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
                     });
-                    enough(leaf_count(k), r * e.relative_gain)
+                    enough(leaf_count(k), MIN_SPLIT_SAMPLES, r * e.relative_gain)
                 };
             }
         }

@@ -180,7 +180,7 @@ fn refinement_prunes_when_the_light_goes_away() {
         spatial_threshold: 1e9,
         ..GuidingConfig::default()
     };
-    let mut field = trained_on_spot(config, 3);
+    let mut field = trained_on_spot(config, 4);
     let before = field.stats();
     assert!(before.directional_depth >= 5, "{before:?}");
     // Now the light is uniform: one iteration of flat values collapses the tree.
@@ -350,6 +350,34 @@ fn with_refinement(refinement: Refinement) -> GuidingConfig {
         spatial_threshold: 1e9,
         ..GuidingConfig::default()
     }
+}
+
+#[test]
+fn a_split_below_the_recorded_leaves_is_predicted_only_from_enough_samples() {
+    use sdguide::refinement::MIN_PREDICTED_SPLIT_SAMPLES;
+    // A point light in the depth-2 cell [0.25, 0.5)²: after one refine, the depth-1 leaf that
+    // holds it splits (it saw more than MIN_SPLIT_SAMPLES), and its quadrant that holds the light
+    // is predicted to split too, to depth 3, only if the quadrant saw
+    // MIN_PREDICTED_SPLIT_SAMPLES samples.
+    let deepest_after_one_refine = |n: u64| {
+        let mut field =
+            GuidingField::new(unit_box(), with_refinement(Refinement::VarianceGain)).unwrap();
+        let d = square_to_direction(Vec2::new(0.3, 0.3));
+        for _ in 0..n {
+            field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, INV_SPHERE_AREA));
+        }
+        field.refine();
+        let cell = field.cells().next().unwrap();
+        let leaves = cell.recorded();
+        let holder = leaves.iter().find(|(c, _)| c.contains(Vec2::new(0.3, 0.3)));
+        (
+            holder.unwrap().0.depth,
+            leaves.iter().map(|(c, _)| c.depth).max(),
+        )
+    };
+    let n = MIN_PREDICTED_SPLIT_SAMPLES;
+    assert_eq!(deepest_after_one_refine(n - 1), (2, Some(2)));
+    assert_eq!(deepest_after_one_refine(n), (3, Some(3)));
 }
 
 #[test]
