@@ -376,9 +376,10 @@ impl DirectionalDistribution<'_> {
         let direction = square_to_direction(s);
         // The round trip through the sphere moves a point by rounding only; a point that close
         // to its leaf's border may come back in the neighbour, so report the density `pdf` finds.
-        let pdf = match sphere::square_of(direction) {
-            Some(back) if near_border => self.tree.pdf(back),
-            _ => pdf,
+        let pdf = if near_border {
+            sphere::square_of(direction).map_or(pdf, |back| self.tree.pdf(back))
+        } else {
+            pdf
         };
         (direction, pdf * INV_SPHERE_AREA)
     }

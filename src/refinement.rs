@@ -62,10 +62,10 @@ pub enum Refinement {
 }
 
 /// Samples a cell of the ended iteration must have seen to split by variance gain (for a split
-/// below the recorded leaves, see [`MIN_PREDICTED_SPLIT_SAMPLES`]). A finer partition than the samples can
-/// support costs more in badly estimated masses than its gain saves: without this guard, at a
-/// small budget the noisy sharp lobe of the quality harness over-split to 2.6× flux share's
-/// variance. Chosen with the harness (`docs/quality.md`).
+/// below the recorded leaves, see [`MIN_PREDICTED_SPLIT_SAMPLES`]). A finer partition than the
+/// samples can support costs more in badly estimated masses than its gain saves: without this
+/// guard, at a small budget the noisy sharp lobe of the quality harness over-split to 2.6× flux
+/// share's variance. Chosen with the harness (`docs/quality.md`).
 pub const MIN_SPLIT_SAMPLES: u64 = 64;
 
 /// Samples a quadrant of a leaf must have seen (in the ended iteration) for its own split to be
