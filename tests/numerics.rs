@@ -76,8 +76,10 @@ fn a_sample_on_a_leaf_border_returns_the_pdf_of_where_its_direction_maps_back() 
             }
         }
     }
-    // The aim is true: many of these points come back across the border (a third, when this
-    // was written), so the test fails if `sample` reported its own leaf's density for them.
+    // The aim is true: a third of these samples (when this was written) come back on the other
+    // side of the border than `u.x` aims them — by the round trip, or by the few ulps between
+    // `left` and the root's own column probability; either way they lie at the border, where
+    // the re-check matters. With the re-check turned off, this test fails (checked then).
     assert!(
         crossed > 0,
         "{crossed} of {samples} samples crossed the border"
