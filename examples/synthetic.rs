@@ -6,6 +6,8 @@
 //! relative variance Var[v/p]/μ² of the one-sample estimator is measured for uniform sphere
 //! sampling and for sampling each learned distribution. The table gives the median over the
 //! points and the mean, which a few bad points can dominate (see the README's quality section).
+//! A second table compares the two rules point by point: the ratio of the two medians above
+//! compares the middle of two distributions, not the same points.
 //!
 //! Each trained field is saved as a cache in `out/` (`synthetic-standard-l2.sdgc`, ...), for
 //! `examples/inspect.rs` to look at.
@@ -64,6 +66,7 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|");
     std::fs::create_dir_all("out").expect("can create out/");
+    let mut per_point = Vec::new();
     for (name, tag, lobe_noise) in [
         ("standard", "standard", 1.0),
         ("standard, noisy lobes (E[ξ²] = 10)", "noisy", 10.0),
@@ -124,13 +127,71 @@ fn main() {
             guided[1].median / guided[0].median,
             guided[1].mean / guided[0].mean
         );
+        per_point.push((name, PointByPoint::new(&guided[0].all, &guided[1].all)));
+    }
+    println!(
+        "\nL2 / L1 at each point (halves: the points sorted by the geometric mean of both rules' relvar):\n"
+    );
+    println!(
+        "| light field | median | geometric mean | points where L2 is lower | median, easier half | median, harder half |"
+    );
+    println!("|---|---|---|---|---|---|");
+    for (name, p) in per_point {
+        println!(
+            "| {name} | {:.3} | {:.3} | {} of {} | {:.3} | {:.3} |",
+            p.median, p.geometric_mean, p.l2_lower, args.points, p.easy_half, p.hard_half
+        );
     }
 }
 
-/// Median and mean of the relative variance over held-out points.
+/// Median and mean of the relative variance over held-out points, and its value at each.
 struct RelVar {
+    all: Vec<f64>,
     median: f64,
     mean: f64,
+}
+
+/// L2's relative variance over L1's at the same points.
+struct PointByPoint {
+    /// Median of the per-point ratios.
+    median: f64,
+    /// Geometric mean of the per-point ratios.
+    geometric_mean: f64,
+    /// Points where L2's relative variance is lower.
+    l2_lower: usize,
+    /// Median ratio over the easier half of the points, and over the harder half. A point's
+    /// difficulty is the geometric mean of the two rules' relvar there: sorting by one rule's
+    /// estimate alone would put the points where its Monte Carlo estimate came out low in the
+    /// easier half, and bias the ratio there.
+    easy_half: f64,
+    hard_half: f64,
+}
+
+impl PointByPoint {
+    fn new(l1: &[f64], l2: &[f64]) -> Self {
+        // NaN for an empty half (a run with one point).
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+        };
+        let ratios: Vec<f64> = l1.iter().zip(l2).map(|(a, b)| b / a).collect();
+        let mut by_difficulty: Vec<(f64, f64)> = l1
+            .iter()
+            .zip(l2)
+            .zip(&ratios)
+            .map(|((a, b), &r)| ((a * b).sqrt(), r))
+            .collect();
+        by_difficulty.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (easy, hard) = by_difficulty.split_at(by_difficulty.len() / 2);
+        let log_sum: f64 = ratios.iter().map(|r| r.ln()).sum();
+        PointByPoint {
+            median: median(ratios.clone()),
+            geometric_mean: (log_sum / ratios.len() as f64).exp(),
+            l2_lower: ratios.iter().filter(|&&r| r < 1.0).count(),
+            easy_half: median(easy.iter().map(|p| p.1).collect()),
+            hard_half: median(hard.iter().map(|p| p.1).collect()),
+        }
+    }
 }
 
 /// Relative variance at each of `points`, sampling each point's distribution (or the uniform
@@ -142,7 +203,7 @@ fn relvars<'a>(
     dist: impl Fn(Vec3) -> Option<sdguide::DirectionalDistribution<'a>>,
 ) -> RelVar {
     let mut rng = Rng::new(7);
-    let mut v: Vec<f64> = points
+    let all: Vec<f64> = points
         .iter()
         .map(|&x| {
             let d = dist(x);
@@ -154,8 +215,10 @@ fn relvars<'a>(
                 .relative_variance
         })
         .collect();
+    let mut v = all.clone();
     v.sort_by(f64::total_cmp);
     RelVar {
+        all,
         median: v[v.len() / 2],
         mean: v.iter().sum::<f64>() / v.len() as f64,
     }

@@ -606,7 +606,15 @@ impl RecordingTree {
             0 => node_root[s as usize],
             _ => root_of(shrunk.leaves[(s & !LEAF_BIT) as usize].1, depth[i] + 1),
         };
-        // Each interior cell's gain, sqrt(m) − Σ_children sqrt(m).
+        // Each interior cell's gain, sqrt(m) − Σ_children sqrt(m). A cell's own sums are
+        // shrunk toward a quarter of its parent's, and its children's toward a quarter of its
+        // own. Where the parent holds a sharp lobe, that quarter is thousands of times a flat
+        // sibling's sums, so the sibling's estimate grows while its children's barely do. The
+        // sibling then shows a gain it does not have, and the tree refines a halo around the
+        // lobe. Taking a cell's sums as the sum of its children's estimates removes the halo:
+        // at a node budget the partitions' oracle improved, and at the default thresholds the
+        // quality harness's variance rose on every field (docs/quality.md, "Why the gain
+        // partitions trail in those two cells").
         let node_gain: Vec<f64> = self
             .nodes
             .iter()
