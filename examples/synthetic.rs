@@ -169,11 +169,6 @@ struct PointByPoint {
 
 impl PointByPoint {
     fn new(l1: &[f64], l2: &[f64]) -> Self {
-        // NaN for an empty half (a run with one point).
-        let median = |mut v: Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-        };
         let ratios: Vec<f64> = l1.iter().zip(l2).map(|(a, b)| b / a).collect();
         let mut by_difficulty: Vec<(f64, f64)> = l1
             .iter()
@@ -215,11 +210,16 @@ fn relvars<'a>(
                 .relative_variance
         })
         .collect();
-    let mut v = all.clone();
-    v.sort_by(f64::total_cmp);
     RelVar {
+        median: median(all.clone()),
+        mean: all.iter().sum::<f64>() / all.len() as f64,
         all,
-        median: v[v.len() / 2],
-        mean: v.iter().sum::<f64>() / v.len() as f64,
     }
+}
+
+/// The middle value (the upper one of an even count); NaN for none (an empty half of a run
+/// with one point).
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
