@@ -611,10 +611,11 @@ impl RecordingTree {
         // own. Where the parent holds a sharp lobe, that quarter is thousands of times a flat
         // sibling's sums, so the sibling's estimate grows while its children's barely do. The
         // sibling then shows a gain it does not have, and the tree refines a halo around the
-        // lobe. Taking a cell's sums as the sum of its children's estimates removes the halo:
-        // at a node budget the partitions' oracle improved, and at the default thresholds the
-        // quality harness's variance rose on every field (docs/quality.md, "Why the gain
-        // partitions trail in those two cells").
+        // lobe. Taking a cell's sums as the sum of its children's estimates removes the halo.
+        // Measured in the quality harness, that raised the variance on every field at the
+        // default thresholds, and at a node budget it lowered the partitions' oracle but not
+        // below flux share's (docs/quality.md, "Why the gain partitions trail in those two
+        // cells").
         let node_gain: Vec<f64> = self
             .nodes
             .iter()
