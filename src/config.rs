@@ -57,11 +57,15 @@ pub struct GuidingConfig {
     /// node costs); refusals are counted. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
-    /// (default 2, chosen with the quality harness: see `docs/quality.md`). At refine, a cell's
-    /// sums become `w · own + (1 − w) · parent's / 4` with `w = n/(n + n0)`, top-down, so a
-    /// sparsely sampled leaf borrows from its siblings instead of trusting a few heavy-tailed
-    /// values (a leaf whose mass is underestimated costs variance without bound). 0 turns
-    /// shrinkage off. Must be finite and ≥ 0.
+    /// when leaf masses are computed (default 0.5, chosen with the quality harness for the
+    /// default l2 rule; the l1 rule, whose masses follow the mean, did better with 2 on most
+    /// light fields: see `docs/quality.md`). At refine, a cell's sums become
+    /// `w · own + (1 − w) · parent's / 4` with `w = n/(n + n0)`, top-down, so a sparsely
+    /// sampled leaf borrows from its siblings instead of trusting a few heavy-tailed values (a
+    /// leaf whose mass is underestimated costs variance without bound). 0 turns the masses'
+    /// shrinkage off. Refinement by variance gain shrinks its own estimates with
+    /// [`SPLIT_PRIOR_SAMPLES`](crate::refinement::SPLIT_PRIOR_SAMPLES), whatever this is.
+    /// Must be finite and ≥ 0.
     pub prior_samples: f32,
     /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`], chosen
     /// with the quality harness; see [`filter`](crate::filter)).
@@ -84,7 +88,7 @@ impl Default for GuidingConfig {
             max_directional_nodes: 8192,
             max_spatial_nodes: 1 << 20,
             max_memory_bytes: 1 << 30,
-            prior_samples: 2.0,
+            prior_samples: 0.5,
             spatial_filter: SpatialFilter::Nearest,
             directional_filter: DirectionalFilter::Box,
         }

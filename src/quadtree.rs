@@ -18,7 +18,9 @@
 
 use crate::filter::overlap;
 use crate::moments::{AtomicMoments, AtomicQuadrants};
-use crate::refinement::{MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, Refinement, split_gain};
+use crate::refinement::{
+    MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, Refinement, SPLIT_PRIOR_SAMPLES, split_gain,
+};
 use crate::selection::GuideSelection;
 use crate::sphere::{self, ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use crate::{LeafRule, Moments};
@@ -591,7 +593,7 @@ impl RecordingTree {
         let quadrants: Vec<_> = self.quadrants.iter().map(|q| q.get()).collect();
         // Every cell's second moment from the same unfiltered samples as the quadrant sums, so
         // that a cell's gain means the same whether it was a leaf or interior.
-        let shrunk = self.shrink(params.prior_samples, |k| {
+        let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| {
             quadrants[k]
                 .iter()
                 .fold((0.0, 0.0, 0), |(_, s2, n), &(s, c)| {
@@ -665,7 +667,7 @@ impl RecordingTree {
                     )
                 } else {
                     let k = (s & !LEAF_BIT) as usize;
-                    let e = split_gain(&quadrants[k], params.prior_samples, parent);
+                    let e = split_gain(&quadrants[k], SPLIT_PRIOR_SAMPLES, parent);
                     let r = slot_root(i, s);
                     total += r;
                     below_leaf[k] = std::array::from_fn(|c| {

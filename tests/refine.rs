@@ -431,3 +431,51 @@ fn variance_gain_refines_toward_the_light_and_collapses_when_it_goes_away() {
     field.refine();
     assert_eq!(field.cells().next().unwrap().recorded().len(), 4);
 }
+
+#[test]
+fn the_masses_shrinkage_does_not_move_the_variance_gain_splits() {
+    // `prior_samples` shrinks the leaf masses only; the gain estimates that decide the splits
+    // shrink with their own `SPLIT_PRIOR_SAMPLES`. The same samples, recorded and refined with
+    // three values of `prior_samples`, give the same partitions and different masses.
+    let refined = |prior_samples: f32| {
+        let mut field = GuidingField::new(
+            unit_box(),
+            GuidingConfig {
+                prior_samples,
+                ..with_refinement(Refinement::VarianceGain)
+            },
+        )
+        .unwrap();
+        // The samples do not come from the learned density, so each iteration records the same
+        // ones whatever the masses. After the first refine the leaves near the light are small
+        // and see few samples, so shrinkage moves their masses.
+        for _ in 0..2 {
+            record_spot(&field, 40);
+            field.refine();
+        }
+        let cell = field.cells().next().unwrap();
+        let cells: Vec<_> = cell.recorded().iter().map(|(c, _)| *c).collect();
+        let masses: Vec<f32> = cell
+            .distribution()
+            .leaves()
+            .into_iter()
+            .map(|(_, p)| p)
+            .collect();
+        (cells, masses)
+    };
+    let (cells, masses) = refined(0.0);
+    assert!(
+        cells.len() > 4,
+        "the light was not refined toward: {cells:?}"
+    );
+    for n0 in [0.5, 8.0] {
+        let (other_cells, other_masses) = refined(n0);
+        assert_eq!(other_cells, cells, "n0 = {n0}");
+        let moved = masses
+            .iter()
+            .zip(&other_masses)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max);
+        assert!(moved > 1e-3, "n0 = {n0} left the masses as they were");
+    }
+}
