@@ -137,7 +137,8 @@ typedef struct {
    */
   uint64_t max_memory_bytes;
   /*
-   `n0`: samples' worth of weight a directional cell's estimate gives its parent's in the leaf masses; >= 0.
+   `n0`: samples' worth of weight a directional cell's estimate gives its parent's in the
+   leaf masses; >= 0.
    */
   float prior_samples;
   /*

@@ -125,7 +125,8 @@ pub struct sdg_config {
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes.
     pub max_memory_bytes: u64,
-    /// `n0`: samples' worth of weight a directional cell's estimate gives its parent's in the leaf masses; >= 0.
+    /// `n0`: samples' worth of weight a directional cell's estimate gives its parent's in the
+    /// leaf masses; >= 0.
     pub prior_samples: f32,
     /// `SDG_FILTER_NEAREST`, `SDG_FILTER_STOCHASTIC` or `SDG_FILTER_BOX`.
     pub spatial_filter: u32,
