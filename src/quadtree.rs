@@ -9,8 +9,9 @@
 //!
 //! [`DirectionalTree::refine`] ends an iteration: it turns the leaf moments into masses with the
 //! active [`LeafRule`], mixes in the uniform floor, sums interior masses bottom-up into the next
-//! sampling tree, and derives the next recording topology from the same masses (split cells
-//! whose share exceeds ρ, collapse those that do not).
+//! sampling tree, and derives the next recording topology by the active [`Refinement`]: split
+//! the cells whose share of those masses exceeds ρ (flux share), or whose split gain, estimated
+//! from the quadrant sums, exceeds its threshold (variance gain); collapse the others.
 //!
 //! Quadrants are numbered `q = ix + 2·iy`, with `ix = [s.x ≥ ½]` and `iy = [s.y ≥ ½]` in the
 //! node's local frame. Nodes are stored so that a child always comes after its parent, which
