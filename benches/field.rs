@@ -83,6 +83,12 @@ fn bench_record(c: &mut Criterion) {
             gain,
         ),
         (
+            "1-thread, deferred box",
+            SpatialFilter::Nearest,
+            DirectionalFilter::DeferredBox,
+            gain,
+        ),
+        (
             "1-thread, stochastic spatial",
             SpatialFilter::Stochastic,
             DirectionalFilter::Box,
@@ -215,12 +221,18 @@ fn bench_refine(c: &mut Criterion) {
         refinement: Refinement::FluxShare,
         ..GuidingConfig::default()
     };
+    let deferred = GuidingConfig {
+        directional_filter: DirectionalFilter::DeferredBox,
+        ..GuidingConfig::default()
+    };
     for (criterion, field) in [
         ("", trained().clone()),
         (", flux share", trained_with(flux)),
+        (", deferred box", trained_with(deferred)),
     ] {
         // One iteration's worth of samples at the trained state, then refine a fresh copy each
-        // time.
+        // time (under the deferred box filter the samples' sums are still pending: refine
+        // spreads them).
         let w = workload();
         let k = field.iteration();
         w.record_iteration(&field, k, 1_000_000);

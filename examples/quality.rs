@@ -114,6 +114,7 @@ fn main() {
     for (spatial, directional) in [
         (SpatialFilter::Nearest, DirectionalFilter::Nearest),
         (SpatialFilter::Nearest, DirectionalFilter::Box),
+        (SpatialFilter::Nearest, DirectionalFilter::DeferredBox),
         (SpatialFilter::Stochastic, DirectionalFilter::Box),
         (SpatialFilter::Box, DirectionalFilter::Box),
     ] {

@@ -118,10 +118,11 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
         SpatialFilter::Stochastic,
         SpatialFilter::Box,
     ][usize::from(filters % 3)];
-    config.directional_filter = if filters & 4 == 0 {
-        DirectionalFilter::Nearest
-    } else {
-        DirectionalFilter::Box
+    // Bit 2 picks a box filter, bit 4 defers it to refine.
+    config.directional_filter = match (filters & 4 != 0, filters & 16 != 0) {
+        (false, _) => DirectionalFilter::Nearest,
+        (true, false) => DirectionalFilter::Box,
+        (true, true) => DirectionalFilter::DeferredBox,
     };
     // Bit 3 picks the refinement; the arbitrary ρ doubles as τ (both must be in (0, 1)).
     if filters & 8 == 0 {

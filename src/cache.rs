@@ -36,8 +36,9 @@ pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
 /// 1.x file they are on the cylindrical map, so the same bytes mean other directions.
 pub const FORMAT_MAJOR: u16 = 2;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
-/// not know (optional sections, trailing bytes of a section).
-pub const FORMAT_MINOR: u16 = 0;
+/// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
+/// (the deferred box filter) to `META`; a 2.0 reader refuses files that use it.
+pub const FORMAT_MINOR: u16 = 1;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -236,6 +237,7 @@ impl GuidingField {
         if let Some(bytes) = sections.quadrants {
             decode_quadrants(bytes, &mut field.trees)?;
         }
+        field.prepare_recording();
         Ok(field)
     }
 
@@ -535,6 +537,7 @@ fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.u8(match c.directional_filter {
         DirectionalFilter::Nearest => 0,
         DirectionalFilter::Box => 1,
+        DirectionalFilter::DeferredBox => 2,
     });
     out.0.extend_from_slice(&[0; 2]);
     debug_assert_eq!(out.0.len(), META_LEN_1_1);
@@ -606,6 +609,7 @@ fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         field.config.directional_filter = match r.u8()? {
             0 => DirectionalFilter::Nearest,
             1 => DirectionalFilter::Box,
+            2 => DirectionalFilter::DeferredBox,
             other => {
                 return Err(corrupt(
                     "meta",
@@ -698,6 +702,8 @@ fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
                 out.u32(s);
             }
         }
+        // The moments as the format defines them: every sample's filtered share included.
+        r.flush_pending();
         out.u32(r.moments.len() as u32);
         for m in r.moments.iter() {
             let m = m.get();
@@ -927,6 +933,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
             nodes: nodes.into_boxed_slice(),
             quadrants: (0..moments.len()).map(|_| Default::default()).collect(),
             moments: moments.into_boxed_slice(),
+            pending: Box::default(),
         },
         selection: GuideSelection::default(),
     })

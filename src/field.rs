@@ -8,7 +8,7 @@
 use crate::filter::hash_jitter;
 use crate::moments::weights;
 use crate::quadtree::{
-    BYTES_PER_NODE, DirectionalTree, LEAF_BYTES, RefineOutcome, RefineParams, SamplingTree,
+    DirectionalTree, RefineOutcome, RefineParams, SamplingTree, bytes_per_node, leaf_bytes,
 };
 use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
@@ -77,7 +77,7 @@ impl GuidingField {
                 requirement: "finite, with min <= max, some extent, and an extent that is finite",
             });
         }
-        Ok(Self {
+        let mut field = Self {
             bounds,
             config,
             spatial: SpatialTree::new(bounds.bounding_cube()),
@@ -88,7 +88,19 @@ impl GuidingField {
             recorded_before: 0,
             spatial_refused: 0,
             directional_refused: 0,
-        })
+        };
+        field.prepare_recording();
+        Ok(field)
+    }
+
+    /// Gives the trees what the configured filter records into: pending sums for
+    /// [`DirectionalFilter::DeferredBox`] (refine gives them to the trees it builds).
+    pub(crate) fn prepare_recording(&mut self) {
+        if self.config.directional_filter == DirectionalFilter::DeferredBox {
+            for t in &mut self.trees {
+                t.recording.defer();
+            }
+        }
     }
 
     /// Records one sample. Safe to call from any number of threads at once; never blocks.
@@ -180,6 +192,7 @@ impl GuidingField {
         match self.config.directional_filter {
             DirectionalFilter::Nearest => tree.record(square, w),
             DirectionalFilter::Box => tree.record_box(square, w),
+            DirectionalFilter::DeferredBox => tree.record_deferred(square, w),
         }
     }
 
@@ -189,6 +202,7 @@ impl GuidingField {
         match self.config.directional_filter {
             DirectionalFilter::Nearest => tree.record_sums(square, w),
             DirectionalFilter::Box => tree.record_box_sums(square, w),
+            DirectionalFilter::DeferredBox => tree.record_deferred_sums(square, w),
         }
     }
 
@@ -213,9 +227,11 @@ impl GuidingField {
         let c = &self.config;
         // The memory budget binds the directional trees too: what the spatial tree and the
         // trees' fixed parts leave of it, shared evenly, caps each tree's interior nodes.
+        let deferred = c.directional_filter == DirectionalFilter::DeferredBox;
         let trees = self.trees.len() as u64;
-        let fixed = self.spatial.bytes() as u64 + trees * TREE_FIXED_BYTES;
-        let per_tree = c.max_memory_bytes.saturating_sub(fixed) / (trees * BYTES_PER_NODE);
+        let fixed = self.spatial.bytes() as u64 + trees * tree_fixed_bytes(deferred);
+        let per_tree =
+            c.max_memory_bytes.saturating_sub(fixed) / (trees * bytes_per_node(deferred));
         let params = RefineParams {
             rule: c.rule,
             uniform_fraction: f64::from(c.uniform_fraction),
@@ -225,6 +241,7 @@ impl GuidingField {
             max_depth: c.max_directional_depth,
             max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
             prior_samples: f64::from(c.prior_samples),
+            deferred,
         };
         let outcomes: Vec<RefineOutcome> = self
             .trees
@@ -323,9 +340,11 @@ impl GuidingField {
     }
 }
 
-/// Bytes a directional tree costs besides its interior nodes: the struct itself and the moments
-/// and quadrant sums of the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
-const TREE_FIXED_BYTES: u64 = size_of::<DirectionalTree>() as u64 + LEAF_BYTES;
+/// Bytes a directional tree costs besides its interior nodes: the struct itself and the sums of
+/// the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
+const fn tree_fixed_bytes(deferred: bool) -> u64 {
+    size_of::<DirectionalTree>() as u64 + leaf_bytes(deferred)
+}
 
 /// The heap and inline bytes of one spatial leaf's directional tree.
 fn tree_bytes(t: &DirectionalTree) -> usize {
@@ -351,7 +370,9 @@ impl<'a> SpatialCell<'a> {
         }
     }
 
-    /// The leaves of the current iteration's recording topology and their moments.
+    /// The leaves of the current iteration's recording topology and their moments. Under
+    /// [`DirectionalFilter::DeferredBox`] the sums still pending are spread first, so the moments
+    /// hold every recorded sample's filtered share.
     pub fn recorded(&self) -> Vec<(DirectionalCell, Moments)> {
         self.tree.recording.leaves()
     }

@@ -13,7 +13,8 @@
 //! ```text
 //!   record   render threads, &self, lock-free     Sample ─► filter ─► spatial leaf ─► quadtree leaf moments
 //!                                                  (mixture terms ─► the leaf's guide-selection sums)
-//!   refine   between iterations, &mut self        moments ─► shrinkage ─► rule masses ─► sampling tree
+//!   refine   between iterations, &mut self        (deferred box filter: pending quadrant sums ─► moments)
+//!                                                  moments ─► shrinkage ─► rule masses ─► sampling tree
 //!                                                  quadrant sums ─► split gains ─► new topology
 //!                                                  guide probability ─► one Newton step
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()

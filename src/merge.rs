@@ -49,7 +49,10 @@ impl GuidingField {
     /// Adds the statistics `other` recorded in the current iteration — every cell's sums and
     /// counts, the guide-selection sums, and the rejection counts — to this field's. Both
     /// fields must have started the iteration from the same state (typically: the same cache,
-    /// loaded on two workers).
+    /// loaded on two workers). Under [`DirectionalFilter::DeferredBox`] both fields' pending
+    /// sums are spread first (in `other` too, which changes nothing it would report or save).
+    ///
+    /// [`DirectionalFilter::DeferredBox`]: crate::DirectionalFilter::DeferredBox
     ///
     /// ```
     /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
@@ -92,6 +95,9 @@ impl GuidingField {
         }
         // Checked everything first: a refused merge leaves this field untouched.
         for (a, b) in self.trees.iter_mut().zip(&other.trees) {
+            // Sums the deferred filter holds back join the moments they are bound for.
+            a.recording.flush_pending_mut();
+            b.recording.flush_pending();
             for (x, y) in a
                 .recording
                 .moments

@@ -73,6 +73,25 @@ impl AtomicF64 {
     pub(crate) fn get(&self) -> f64 {
         f64::from_bits(self.0.load(Ordering::Relaxed))
     }
+
+    /// Reads the value and leaves zero in its place, in one atomic step: an add racing with it
+    /// lands either in what is returned or in what stays.
+    pub(crate) fn take(&self) -> f64 {
+        f64::from_bits(self.0.swap(0.0f64.to_bits(), Ordering::Relaxed))
+    }
+
+    /// [`add`](Self::add) with exclusive access: a plain add, no atomic instruction.
+    #[inline]
+    pub(crate) fn add_mut(&mut self, x: f64) {
+        let bits = self.0.get_mut();
+        *bits = (f64::from_bits(*bits) + x).to_bits();
+    }
+
+    /// [`take`](Self::take) with exclusive access.
+    #[inline]
+    pub(crate) fn take_mut(&mut self) -> f64 {
+        f64::from_bits(std::mem::replace(self.0.get_mut(), 0.0f64.to_bits()))
+    }
 }
 
 /// The moments of one directional leaf, updated in place by recording threads.
@@ -98,6 +117,15 @@ impl AtomicMoments {
         if w1 != 0.0 {
             self.sum.add(w1);
             self.sum_sq.add(w2);
+        }
+    }
+
+    /// [`add_sums`](Self::add_sums) with exclusive access (no atomic instructions).
+    #[inline]
+    pub(crate) fn add_sums_mut(&mut self, (w1, w2): (f64, f64)) {
+        if w1 != 0.0 {
+            self.sum.add_mut(w1);
+            self.sum_sq.add_mut(w2);
         }
     }
 
@@ -192,5 +220,47 @@ impl AtomicQuadrants {
 impl Clone for AtomicQuadrants {
     fn clone(&self) -> Self {
         Self::from_quadrants(self.get())
+    }
+}
+
+/// Sums one level below a directional leaf that [`DirectionalFilter::DeferredBox`] has yet to
+/// spread: per quadrant `q`, `(Σ v/p, Σ v²/p)` of the samples recorded there since the last
+/// spreading. One cache line per leaf, so that recording a sample touches one line for them.
+///
+/// [`DirectionalFilter::DeferredBox`]: crate::DirectionalFilter::DeferredBox
+#[derive(Debug, Default)]
+#[repr(align(64))]
+pub(crate) struct AtomicPending {
+    sum: [AtomicF64; 4],
+    sum_sq: [AtomicF64; 4],
+}
+
+impl AtomicPending {
+    /// Adds weights `(v/p, v²/p)` to quadrant `q`.
+    #[inline]
+    pub(crate) fn add(&self, q: usize, (w1, w2): (f64, f64)) {
+        if w1 != 0.0 {
+            self.sum[q].add(w1);
+            self.sum_sq[q].add(w2);
+        }
+    }
+
+    /// Each quadrant's `(Σ v/p, Σ v²/p)`, leaving zeros behind.
+    pub(crate) fn take(&self) -> [(f64, f64); 4] {
+        std::array::from_fn(|q| (self.sum[q].take(), self.sum_sq[q].take()))
+    }
+
+    /// [`take`](Self::take) with exclusive access (no atomic instructions).
+    pub(crate) fn take_mut(&mut self) -> [(f64, f64); 4] {
+        std::array::from_fn(|q| (self.sum[q].take_mut(), self.sum_sq[q].take_mut()))
+    }
+}
+
+impl Clone for AtomicPending {
+    fn clone(&self) -> Self {
+        Self {
+            sum: std::array::from_fn(|q| AtomicF64::new(self.sum[q].get())),
+            sum_sq: std::array::from_fn(|q| AtomicF64::new(self.sum_sq[q].get())),
+        }
     }
 }

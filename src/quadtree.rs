@@ -18,7 +18,7 @@
 //! lets bottom-up passes run as one reverse sweep.
 
 use crate::filter::overlap;
-use crate::moments::{AtomicMoments, AtomicQuadrants};
+use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
 use crate::refinement::{
     MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, Refinement, SPLIT_PRIOR_SAMPLES, split_gain,
 };
@@ -38,14 +38,23 @@ pub(crate) const NO_CHILD: u16 = 0;
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
 
-/// Bytes one recording leaf holds: its moments (24) and its quadrant sums (64).
-pub(crate) const LEAF_BYTES: u64 =
-    (size_of::<AtomicMoments>() + size_of::<AtomicQuadrants>()) as u64;
+/// Bytes one recording leaf holds: its moments (24) and its quadrant sums (64), and under the
+/// deferred box filter its pending sums (64 more).
+pub(crate) const fn leaf_bytes(deferred: bool) -> u64 {
+    let pending = if deferred {
+        size_of::<AtomicPending>()
+    } else {
+        0
+    };
+    (size_of::<AtomicMoments>() + size_of::<AtomicQuadrants>() + pending) as u64
+}
 
 /// Upper bound on the bytes one interior node costs a directional tree: its sampling node (32),
-/// its recording node (16), and the three leaves it adds net (312 in all).
-pub(crate) const BYTES_PER_NODE: u64 =
-    (size_of::<SamplingNode>() + size_of::<[u32; 4]>()) as u64 + 3 * LEAF_BYTES;
+/// its recording node (16), and the three leaves it adds net (312 in all; 504 under the
+/// deferred box filter).
+pub(crate) const fn bytes_per_node(deferred: bool) -> u64 {
+    (size_of::<SamplingNode>() + size_of::<[u32; 4]>()) as u64 + 3 * leaf_bytes(deferred)
+}
 
 /// Bits of the fixed-point square coordinates descents use: deeper than any tree (20 levels).
 const FIXED_BITS: u32 = 24;
@@ -296,17 +305,23 @@ pub(crate) struct RecordingTree {
     /// Per leaf (same index as `moments`): the second-moment sums of its four quadrants, from
     /// the samples that landed in it (unfiltered).
     pub(crate) quadrants: Box<[AtomicQuadrants]>,
+    /// Per leaf, the quadrant sums [`DirectionalFilter::DeferredBox`] has yet to spread; empty
+    /// under the other filters (and until [`defer`](Self::defer), when a deferred record
+    /// spreads at once).
+    ///
+    /// [`DirectionalFilter::DeferredBox`]: crate::DirectionalFilter::DeferredBox
+    pub(crate) pending: Box<[AtomicPending]>,
 }
 
 impl RecordingTree {
     /// One root with four empty leaves.
     fn root() -> Self {
-        Self::from_nodes(vec![[FREE; 4]])
+        Self::from_nodes(vec![[FREE; 4]], false)
     }
 
     /// Builds a tree from interior nodes whose leaf slots are marked `FREE`: numbers the
-    /// leaves in node order and gives each a zeroed accumulator.
-    fn from_nodes(mut nodes: Vec<[u32; 4]>) -> Self {
+    /// leaves in node order and gives each a zeroed accumulator (and pending sums if `deferred`).
+    fn from_nodes(mut nodes: Vec<[u32; 4]>, deferred: bool) -> Self {
         let mut leaves = 0u32;
         for slot in nodes.iter_mut().flatten() {
             if *slot == FREE {
@@ -314,10 +329,25 @@ impl RecordingTree {
                 leaves += 1;
             }
         }
-        Self {
+        let mut tree = Self {
             nodes: nodes.into_boxed_slice(),
             moments: (0..leaves).map(|_| AtomicMoments::default()).collect(),
             quadrants: (0..leaves).map(|_| AtomicQuadrants::default()).collect(),
+            pending: Box::default(),
+        };
+        if deferred {
+            tree.defer();
+        }
+        tree
+    }
+
+    /// Gives every leaf pending sums, so that [`record_deferred`](Self::record_deferred) defers.
+    pub(crate) fn defer(&mut self) {
+        if self.pending.len() != self.moments.len() {
+            self.flush_pending_mut();
+            self.pending = (0..self.moments.len())
+                .map(|_| AtomicPending::default())
+                .collect();
         }
     }
 
@@ -371,6 +401,77 @@ impl RecordingTree {
         self.quadrants[k].add(q, w2);
     }
 
+    /// Counts the sample where it landed, and adds its weights to the pending sums of the
+    /// leaf's quadrant that holds `s`, for [`flush_pending`](Self::flush_pending) to spread
+    /// (the deferred box filter). Without pending sums it spreads them at once, as
+    /// [`record_box`](Self::record_box) does.
+    #[inline]
+    pub(crate) fn record_deferred(&self, s: Vec2, weights: (f64, f64)) {
+        let (k, depth, q) = self.locate(s);
+        self.moments[k].add_count();
+        self.quadrants[k].add(q, weights.1);
+        self.defer_sums(s, k, depth, q, weights);
+    }
+
+    /// [`record_deferred`](Self::record_deferred) without counting a sample.
+    #[inline]
+    pub(crate) fn record_deferred_sums(&self, s: Vec2, weights: (f64, f64)) {
+        let (k, depth, q) = self.locate(s);
+        self.defer_sums(s, k, depth, q, weights);
+    }
+
+    #[inline]
+    fn defer_sums(&self, s: Vec2, k: usize, depth: u32, q: usize, weights: (f64, f64)) {
+        match self.pending.get(k) {
+            Some(pending) => pending.add(q, weights),
+            None => self.splat(s, cell_area(depth).sqrt(), weights),
+        }
+    }
+
+    /// Spreads every leaf's pending sums into the leaves' moments, as the box filter would
+    /// have: each quadrant's sums over a square the size of its leaf, centred on the quadrant.
+    /// Safe while other threads record (the sums are taken atomically, and what they add after
+    /// waits for the next flush); the moments then hold what they will hold at refine.
+    pub(crate) fn flush_pending(&self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        self.spread_pending(|k| self.pending[k].take(), &mut |k, part| {
+            self.moments[k].add_sums(part)
+        });
+    }
+
+    /// [`flush_pending`](Self::flush_pending) with the tree to itself (at refine): plain loads
+    /// and adds instead of atomic ones, which would be most of its cost.
+    pub(crate) fn flush_pending_mut(&mut self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let mut pending = std::mem::take(&mut self.pending);
+        let mut moments = std::mem::take(&mut self.moments);
+        self.spread_pending(|k| pending[k].take_mut(), &mut |k, part| {
+            moments[k].add_sums_mut(part)
+        });
+        (self.pending, self.moments) = (pending, moments);
+    }
+
+    /// Spreads each leaf's pending sums, as `take(leaf)` yields them, over a leaf-sized square
+    /// centred on each quadrant, handing the shares to `add` (reads only the topology, so the
+    /// sums may be moved out of the tree meanwhile).
+    fn spread_pending(
+        &self,
+        mut take: impl FnMut(usize) -> [(f64, f64); 4],
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) {
+        self.visit_leaves(|k, cell| {
+            for (q, sums) in take(k).into_iter().enumerate() {
+                let quadrant = cell.child(q);
+                let centre = quadrant.origin + Vec2::splat(0.5 * quadrant.size);
+                self.splat_into(centre, f64::from(cell.size), sums, add);
+            }
+        });
+    }
+
     /// [`record_box_sums`](Self::record_box_sums), and counts the sample where it landed.
     pub(crate) fn record_box(&self, s: Vec2, weights: (f64, f64)) {
         let (k, depth, q) = self.locate(s);
@@ -395,7 +496,21 @@ impl RecordingTree {
     }
 
     /// [`record_box_sums`](Self::record_box_sums) with the side `size` of the leaf holding `s`.
-    fn splat(&self, s: Vec2, size: f64, (w1, w2): (f64, f64)) {
+    fn splat(&self, s: Vec2, size: f64, weights: (f64, f64)) {
+        self.splat_into(s, size, weights, &mut |k, part| {
+            self.moments[k].add_sums(part)
+        });
+    }
+
+    /// [`splat`](Self::splat), handing each leaf's share to `add(leaf, (w1, w2))` instead of
+    /// adding it to the leaf's moments (it reads only the topology).
+    fn splat_into(
+        &self,
+        s: Vec2,
+        size: f64,
+        (w1, w2): (f64, f64),
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) {
         if w1 == 0.0 {
             return;
         }
@@ -403,7 +518,7 @@ impl RecordingTree {
         let h = 0.5 * size;
         let area = size * size;
         if area <= 0.0 {
-            return self.record_sums(s, (w1, w2));
+            return add(self.leaf_of(s).0, (w1, w2));
         }
         // In f64, so that the shares of one sample sum to 1 within a few 1e-16.
         let per_area = (w1 / area, w2 / area);
@@ -412,15 +527,22 @@ impl RecordingTree {
             .flatten()
         {
             if x[1] > x[0] && y[1] > y[0] {
-                self.splat_piece(x, y, size, per_area);
+                self.splat_piece(x, y, size, per_area, add);
             }
         }
     }
 
-    /// Adds `per_area` times the overlapped area to the cells that the piece `[x0, x1) ×
-    /// [y0, y1)` of the unit square overlaps (see [`splat`](Self::splat); `size` is the
-    /// filter's square's side).
-    fn splat_piece(&self, [x0, x1]: [f64; 2], [y0, y1]: [f64; 2], size: f64, (w1, w2): (f64, f64)) {
+    /// Hands `add` `per_area` times the overlapped area for each cell that the piece
+    /// `[x0, x1) × [y0, y1)` of the unit square overlaps (see [`splat`](Self::splat); `size` is
+    /// the filter's square's side).
+    fn splat_piece(
+        &self,
+        [x0, x1]: [f64; 2],
+        [y0, y1]: [f64; 2],
+        size: f64,
+        (w1, w2): (f64, f64),
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) {
         // 1. Down to the deepest node whose cell holds the whole piece.
         let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
         let mut depth = 0;
@@ -454,7 +576,7 @@ impl RecordingTree {
                     }
                     let part = (w1 * fx * fy, w2 * fx * fy);
                     if slot & LEAF_BIT != 0 {
-                        self.moments[(slot & !LEAF_BIT) as usize].add_sums(part);
+                        add((slot & !LEAF_BIT) as usize, part);
                     } else if half <= size || pending == next.len() {
                         // Finer than the square (or, unreachably, a fifth cell): the leaf
                         // holding the overlap's centre, found from this cell down.
@@ -462,7 +584,7 @@ impl RecordingTree {
                             (0.5 * (x0.max(cx) + x1.min(cx + half))) as f32,
                             (0.5 * (y0.max(cy) + y1.min(cy + half))) as f32,
                         );
-                        self.moments[self.leaf_below(slot, depth + 1, centre)].add_sums(part);
+                        add(self.leaf_below(slot, depth + 1, centre), part);
                     } else {
                         next[pending] = (slot, cx, cy);
                         pending += 1;
@@ -490,23 +612,26 @@ impl RecordingTree {
         }
     }
 
-    /// Every leaf with its recorded moments, in depth-first order.
+    /// Every leaf with its recorded moments, in depth-first order (pending sums spread first).
     pub(crate) fn leaves(&self) -> Vec<(DirectionalCell, Moments)> {
+        self.flush_pending();
         let mut out = Vec::new();
+        self.visit_leaves(|k, cell| out.push((cell, self.moments[k].get())));
+        out
+    }
+
+    /// Calls `f` with every leaf's moments index and cell, in depth-first order.
+    fn visit_leaves(&self, mut f: impl FnMut(usize, DirectionalCell)) {
         let mut stack = vec![(0usize, DirectionalCell::ROOT)];
         while let Some((node, cell)) = stack.pop() {
             for (q, &slot) in self.nodes[node].iter().enumerate() {
                 if slot & LEAF_BIT != 0 {
-                    out.push((
-                        cell.child(q),
-                        self.moments[(slot & !LEAF_BIT) as usize].get(),
-                    ));
+                    f((slot & !LEAF_BIT) as usize, cell.child(q));
                 } else {
                     stack.push((slot as usize, cell.child(q)));
                 }
             }
         }
-        out
     }
 
     /// Total samples recorded into the tree (saturating: counts loaded from a file or merged
@@ -521,6 +646,7 @@ impl RecordingTree {
         std::mem::size_of_val(&*self.nodes)
             + std::mem::size_of_val(&*self.moments)
             + std::mem::size_of_val(&*self.quadrants)
+            + std::mem::size_of_val(&*self.pending)
     }
 
     /// Each leaf's `(S1, S2)` shrunk toward its parent's: top-down, a cell's estimate is
@@ -719,6 +845,8 @@ pub(crate) struct RefineParams {
     pub max_depth: u32,
     pub max_nodes: u32,
     pub prior_samples: f64,
+    /// Whether recording defers the directional box filter to refine (give leaves pending sums).
+    pub deferred: bool,
 }
 
 /// What one directional refine did.
@@ -867,6 +995,7 @@ impl DirectionalTree {
     /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
     pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
         self.selection.step();
+        self.recording.flush_pending_mut();
         let samples = self.recording.count();
         if samples == 0 {
             // Nothing landed here; shares a box filter spread in from neighbouring spatial
@@ -966,7 +1095,10 @@ impl DirectionalTree {
         if grown.gave_up {
             grown = self.grow(keys, params, BinaryHeap::new());
         }
-        (RecordingTree::from_nodes(grown.nodes), grown.refused)
+        (
+            RecordingTree::from_nodes(grown.nodes, params.deferred),
+            grown.refused,
+        )
     }
 
     /// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
@@ -1027,8 +1159,10 @@ mod tests {
 
     #[test]
     fn a_node_costs_what_the_configuration_documents() {
-        assert_eq!(LEAF_BYTES, 24 + 64);
-        assert_eq!(BYTES_PER_NODE, 312);
+        assert_eq!(leaf_bytes(false), 24 + 64);
+        assert_eq!(bytes_per_node(false), 312);
+        assert_eq!(leaf_bytes(true), 24 + 64 + 64);
+        assert_eq!(bytes_per_node(true), 504);
     }
 
     #[test]

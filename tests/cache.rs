@@ -3,7 +3,9 @@
 
 use glam::Vec3;
 use sdguide::synthetic::{LightField, Rng, Workload, room_bounds};
-use sdguide::{CacheError, GuidingConfig, GuidingField, MergeError, Refinement, Sample};
+use sdguide::{
+    CacheError, DirectionalFilter, GuidingConfig, GuidingField, MergeError, Refinement, Sample,
+};
 
 fn workload() -> Workload {
     Workload {
@@ -17,9 +19,16 @@ fn workload() -> Workload {
 /// A small but real field: a few spatial leaves, trees several levels deep, and statistics
 /// recorded in the current iteration.
 fn small_field() -> GuidingField {
+    small_field_with(DirectionalFilter::default())
+}
+
+/// [`small_field`] with another directional filter. Under the deferred box filter the current
+/// iteration's sums are still pending when the field is saved or merged.
+fn small_field_with(directional_filter: DirectionalFilter) -> GuidingField {
     let config = GuidingConfig {
         spatial_threshold: 400.0,
         subdivision_threshold: 0.05,
+        directional_filter,
         ..GuidingConfig::default()
     };
     let mut field = GuidingField::new(room_bounds(), config).unwrap();
@@ -33,6 +42,9 @@ fn samples(seed: u64, n: usize, field: &GuidingField) -> Vec<Sample> {
     let mut rng = Rng::new(seed);
     (0..n).map(|_| workload().draw(field, &mut rng)).collect()
 }
+
+/// The directional filters whose recording state the cache and `merge` must carry.
+const FILTERS: [DirectionalFilter; 2] = [DirectionalFilter::Box, DirectionalFilter::DeferredBox];
 
 /// Every query, every recorded moment and every counter of two fields agree exactly.
 fn assert_same(a: &GuidingField, b: &GuidingField) {
@@ -57,21 +69,24 @@ fn assert_same(a: &GuidingField, b: &GuidingField) {
 
 #[test]
 fn a_loaded_field_is_the_saved_field_and_training_continues() {
-    let field = small_field();
-    assert!(field.stats().spatial_leaves > 2 && field.stats().directional_depth > 2);
-    let mut bytes = Vec::new();
-    field.save(&mut bytes).unwrap();
-    assert_eq!(bytes, field.to_bytes());
-    let loaded = GuidingField::load(bytes.as_slice()).unwrap();
-    assert_same(&field, &loaded);
-    // Training continues identically from either.
-    let (mut a, mut b) = (field, loaded);
-    let more = samples(3, 5000, &a);
-    a.record_all(&more);
-    b.record_all(&more);
-    a.refine();
-    b.refine();
-    assert_same(&a, &b);
+    for filter in FILTERS {
+        let field = small_field_with(filter);
+        assert!(field.stats().spatial_leaves > 2 && field.stats().directional_depth > 2);
+        let mut bytes = Vec::new();
+        field.save(&mut bytes).unwrap();
+        assert_eq!(bytes, field.to_bytes());
+        let loaded = GuidingField::load(bytes.as_slice()).unwrap();
+        assert_same(&field, &loaded);
+        // Training continues identically from either.
+        let (mut a, mut b) = (field, loaded);
+        let more = samples(3, 5000, &a);
+        a.record_all(&more);
+        b.record_all(&more);
+        assert_same(&a, &b);
+        a.refine();
+        b.refine();
+        assert_same(&a, &b);
+    }
 }
 
 #[test]
@@ -182,10 +197,13 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 0), &parts(&bytes)),
+        assemble((2, 1), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
+    // The same sections as a 2.0 file (2.1 only added a filter value this field does not use).
+    let older = GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))).unwrap();
+    assert_same(&field, &older);
     // A 2.7 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
@@ -204,7 +222,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 0)));
+            assert_eq!((found, supported), ((3, 0), (2, 1)));
         }
         other => panic!("{other:?}"),
     }
@@ -355,7 +373,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 0)));
+            assert_eq!((found, supported), ((1, 0), (2, 1)));
         }
         other => panic!("{other:?}"),
     }
@@ -380,7 +398,13 @@ fn a_file_without_the_refinement_fields_keeps_refining_by_flux_share() {
 
 #[test]
 fn merged_workers_refine_exactly_like_one_process() {
-    let base = GuidingField::from_bytes(&small_field().to_bytes()).unwrap();
+    for filter in FILTERS {
+        merged_workers_refine_like_one_process(filter);
+    }
+}
+
+fn merged_workers_refine_like_one_process(filter: DirectionalFilter) {
+    let base = GuidingField::from_bytes(&small_field_with(filter).to_bytes()).unwrap();
     let mut base = base;
     base.refine(); // start the iteration clean, as a broadcast cache would
     let broadcast = base.to_bytes();
@@ -401,7 +425,8 @@ fn merged_workers_refine_exactly_like_one_process() {
             // The same non-negative terms summed in two groupings: each sum is within
             // (n − 1)·ε of the exact one, for n terms. A leaf's terms are not only its counted
             // samples: the box filter adds shares of samples counted elsewhere (a leaf may have
-            // sums and a count of 0), at most four folded pieces per sample.
+            // sums and a count of 0), at most four folded pieces per sample. (Deferred, the
+            // groupings are the quadrants' sums, spread at the same points.)
             let tol = 2.0 * 4.0 * (s1.len() + s2.len() + 1) as f64 * f64::EPSILON;
             assert!((ma.sum - mu.sum).abs() <= tol * mu.sum, "{ma:?} {mu:?}");
             assert!(

@@ -61,7 +61,11 @@ fn every_filter_keeps_each_samples_whole_weight_and_counts_it_once() {
         SpatialFilter::Stochastic,
         SpatialFilter::Box,
     ] {
-        for directional in [DirectionalFilter::Nearest, DirectionalFilter::Box] {
+        for directional in [
+            DirectionalFilter::Nearest,
+            DirectionalFilter::Box,
+            DirectionalFilter::DeferredBox,
+        ] {
             let mut field = GuidingField::new(
                 sdguide::synthetic::room_bounds(),
                 GuidingConfig {
@@ -266,4 +270,55 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
         }
     }
     assert_eq!(found, 2);
+}
+
+#[test]
+fn deferred_box_spreads_each_quadrant_as_the_box_filter_spreads_a_sample_at_its_centre() {
+    // On the first iteration's four leaves (side ½) the quadrant centres are the points
+    // ((2i + 1)/8, (2j + 1)/8). Both filters spread a sample there over the same ½-sided
+    // square, the box filter at once and the deferred one from the quadrant's sums, so the
+    // recorded moments agree but for the order of the additions and the direction's round
+    // trip through the sphere (a few 1e-7 of the square: shares move by 1e-6 of the square's
+    // side at most), and so do the next distributions.
+    let fields = [DirectionalFilter::Box, DirectionalFilter::DeferredBox]
+        .map(|d| GuidingField::new(unit_box(), config(SpatialFilter::Nearest, d)).unwrap());
+    let mut rng = Rng::new(12);
+    // 20000 samples: a leaf's quadrants hold enough (> 512) to predict a split.
+    for _ in 0..20_000 {
+        let [i, j] = [0, 1].map(|_| (rng.next_f32() * 4.0).min(3.0) as u32);
+        let s = Vec2::new((2 * i + 1) as f32, (2 * j + 1) as f32) / 8.0;
+        // One quadrant far brighter than the others, so that its leaf splits.
+        let bright = if (i, j) == (3, 1) { 30.0 } else { 1.0 };
+        let (v, p) = (bright * (0.1 + rng.next_f32()), 0.5 + rng.next_f32());
+        let sample = Sample::new(Vec3::splat(0.5), square_to_direction(s), v, p);
+        for f in &fields {
+            f.record(&sample);
+        }
+    }
+    let (boxed, deferred) = (recorded(&fields[0]), recorded(&fields[1]));
+    assert_eq!(boxed.len(), 4);
+    for ((_, lb, mb), (_, ld, md)) in boxed.iter().zip(&deferred) {
+        assert_eq!((lb, mb.count), (ld, md.count));
+        assert!((md.sum / mb.sum - 1.0).abs() < 1e-5, "{mb:?} {md:?}");
+        assert!((md.sum_sq / mb.sum_sq - 1.0).abs() < 1e-5, "{mb:?} {md:?}");
+    }
+    let [mut a, mut b] = fields;
+    a.refine();
+    b.refine();
+    let (la, lb) = (
+        a.cells().next().unwrap().distribution().leaves(),
+        b.cells().next().unwrap().distribution().leaves(),
+    );
+    assert_eq!(la.len(), lb.len());
+    for ((ca, pa), (cb, pb)) in la.iter().zip(&lb) {
+        assert_eq!(ca, cb);
+        assert!((pa / pb - 1.0).abs() < 1e-5, "{pa} {pb}");
+    }
+    // The next recording topologies are the same, split where the light is bright.
+    let topology = |f: &GuidingField| -> Vec<_> {
+        let cell = f.cells().next().unwrap();
+        cell.recorded().into_iter().map(|(l, _)| l).collect()
+    };
+    assert_eq!(topology(&a), topology(&b));
+    assert!(topology(&a).len() > 4, "{:?}", topology(&a));
 }

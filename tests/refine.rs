@@ -2,7 +2,7 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::sphere::{INV_SPHERE_AREA, square_to_direction};
-use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, Refinement, Sample};
+use sdguide::{Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample};
 
 fn unit_box() -> Aabb {
     Aabb::new(Vec3::ZERO, Vec3::ONE)
@@ -301,6 +301,13 @@ fn spatial_caps_stop_splitting_and_say_so() {
 
 #[test]
 fn the_memory_budget_bounds_directional_growth_too() {
+    // The deferred box filter's leaves are larger (pending sums): the budget holds for both.
+    for directional_filter in [DirectionalFilter::Box, DirectionalFilter::DeferredBox] {
+        memory_budget_bounds_directional_growth(directional_filter);
+    }
+}
+
+fn memory_budget_bounds_directional_growth(directional_filter: DirectionalFilter) {
     // An absurd but valid configuration: every cell with any light wants to split, as deep and
     // as wide as allowed. The budget (64 KiB) must still hold.
     let config = GuidingConfig {
@@ -309,6 +316,7 @@ fn the_memory_budget_bounds_directional_growth_too() {
         max_directional_nodes: 65535,
         spatial_threshold: 50.0,
         max_memory_bytes: 64 * 1024,
+        directional_filter,
         ..GuidingConfig::default()
     };
     let budget = config.max_memory_bytes;

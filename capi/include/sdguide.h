@@ -33,6 +33,12 @@
 #define SDG_FILTER_BOX 2
 
 /*
+ Directional filter: the box filter applied at refine to each leaf quadrant's sums (records
+ in about half the time of `SDG_FILTER_BOX`).
+ */
+#define SDG_FILTER_DEFERRED_BOX 3
+
+/*
  Refinement: split directional cells by their share of the mass (`subdivision_threshold`).
  */
 #define SDG_REFINEMENT_FLUX_SHARE 0
@@ -146,7 +152,7 @@ typedef struct {
    */
   uint32_t spatial_filter;
   /*
-   `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
+   `SDG_FILTER_NEAREST`, `SDG_FILTER_BOX` or `SDG_FILTER_DEFERRED_BOX`.
    */
   uint32_t directional_filter;
   /*

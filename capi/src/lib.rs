@@ -69,6 +69,9 @@ pub const SDG_FILTER_NEAREST: u32 = 0;
 pub const SDG_FILTER_STOCHASTIC: u32 = 1;
 /// Filter: spread the sample over the cells a cell-sized box around it overlaps.
 pub const SDG_FILTER_BOX: u32 = 2;
+/// Directional filter: the box filter applied at refine to each leaf quadrant's sums (records
+/// in about half the time of `SDG_FILTER_BOX`).
+pub const SDG_FILTER_DEFERRED_BOX: u32 = 3;
 
 /// Refinement: split directional cells by their share of the mass (`subdivision_threshold`).
 pub const SDG_REFINEMENT_FLUX_SHARE: u32 = 0;
@@ -130,7 +133,7 @@ pub struct sdg_config {
     pub prior_samples: f32,
     /// `SDG_FILTER_NEAREST`, `SDG_FILTER_STOCHASTIC` or `SDG_FILTER_BOX`.
     pub spatial_filter: u32,
-    /// `SDG_FILTER_NEAREST` or `SDG_FILTER_BOX`.
+    /// `SDG_FILTER_NEAREST`, `SDG_FILTER_BOX` or `SDG_FILTER_DEFERRED_BOX`.
     pub directional_filter: u32,
     /// `SDG_REFINEMENT_FLUX_SHARE` or `SDG_REFINEMENT_VARIANCE_GAIN`.
     pub refinement: u32,
@@ -311,6 +314,7 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
             directional_filter: match c.directional_filter {
                 DirectionalFilter::Nearest => SDG_FILTER_NEAREST,
                 DirectionalFilter::Box => SDG_FILTER_BOX,
+                DirectionalFilter::DeferredBox => SDG_FILTER_DEFERRED_BOX,
             },
             refinement: match c.refinement {
                 Refinement::FluxShare => SDG_REFINEMENT_FLUX_SHARE,
@@ -374,6 +378,7 @@ pub unsafe extern "C" fn sdg_field_create(
             directional_filter: match c.directional_filter {
                 SDG_FILTER_NEAREST => DirectionalFilter::Nearest,
                 SDG_FILTER_BOX => DirectionalFilter::Box,
+                SDG_FILTER_DEFERRED_BOX => DirectionalFilter::DeferredBox,
                 other => {
                     return fail(
                         sdg_status::Config,

@@ -205,7 +205,27 @@ fn non_finite_inputs_are_rejected_or_refused() {
             sdg_field_create(&config(), v(1.0, 1.0, 1.0), v(0.0, 0.0, 0.0), &mut out),
             sdg_status::Config
         );
+        // The deferred box is a directional filter only.
+        let c = sdg_config {
+            spatial_filter: SDG_FILTER_DEFERRED_BOX,
+            ..config()
+        };
+        assert_eq!(
+            sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+            sdg_status::Config
+        );
+        assert!(last_error().contains("spatial filter"), "{}", last_error());
         assert!(out.is_null());
+        let c = sdg_config {
+            directional_filter: SDG_FILTER_DEFERRED_BOX,
+            ..config()
+        };
+        assert_eq!(
+            sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+            sdg_status::Ok
+        );
+        assert!(!out.is_null());
+        sdg_field_destroy(out);
         sdg_field_destroy(f);
     }
 }

@@ -5,11 +5,12 @@
 //! cargo run --release -p sdguide-render -- [--scene door] [--time 40] [--spp N] [--rule both]
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
+//!     [--filter box|deferred|nearest]
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
 use indicatif::{ProgressBar, ProgressStyle};
-use sdguide::{GuidingConfig, GuidingField, LeafRule, Refinement};
+use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement};
 use sdguide_render::image::{Image, side_by_side, write_png};
 use sdguide_render::reference;
 use sdguide_render::render::{Budget, Method, Outcome, Training, render};
@@ -22,7 +23,7 @@ use std::time::Duration;
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--time SECONDS (0: none)] \
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
-[--reference]";
+[--filter box|deferred|nearest] [--reference]";
 
 struct Args {
     scene: String,
@@ -37,6 +38,7 @@ struct Args {
     make_reference: bool,
     guide_probability: Option<f32>,
     refinement: Refinement,
+    directional_filter: DirectionalFilter,
 }
 
 fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
@@ -59,6 +61,7 @@ fn parse() -> Result<Args, String> {
         make_reference: false,
         guide_probability: None,
         refinement: Refinement::default(),
+        directional_filter: DirectionalFilter::default(),
     };
     let mut argv = std::env::args().skip(1);
     while let Some(flag) = argv.next() {
@@ -96,6 +99,14 @@ fn parse() -> Result<Args, String> {
                     "gain" => Refinement::VarianceGain,
                     "flux" => Refinement::FluxShare,
                     _ => return Err(format!("bad value for --refinement: {value}")),
+                }
+            }
+            "--filter" => {
+                a.directional_filter = match value.as_str() {
+                    "box" => DirectionalFilter::Box,
+                    "deferred" => DirectionalFilter::DeferredBox,
+                    "nearest" => DirectionalFilter::Nearest,
+                    _ => return Err(format!("bad value for --filter: {value}")),
                 }
             }
             "--guide-probability" => {
@@ -155,6 +166,7 @@ fn run_method(
         Training {
             config: &GuidingConfig {
                 refinement: args.refinement,
+                directional_filter: args.directional_filter,
                 ..GuidingConfig::default()
             },
             cache,
