@@ -96,7 +96,7 @@ impl GuidingField {
     /// Gives the trees what the configured filter records into: pending sums for
     /// [`DirectionalFilter::DeferredBox`] (refine gives them to the trees it builds).
     pub(crate) fn prepare_recording(&mut self) {
-        if self.config.directional_filter == DirectionalFilter::DeferredBox {
+        if self.config.directional_filter.defers() {
             for t in &mut self.trees {
                 t.recording.defer();
             }
@@ -227,7 +227,7 @@ impl GuidingField {
         let c = &self.config;
         // The memory budget binds the directional trees too: what the spatial tree and the
         // trees' fixed parts leave of it, shared evenly, caps each tree's interior nodes.
-        let deferred = c.directional_filter == DirectionalFilter::DeferredBox;
+        let deferred = c.directional_filter.defers();
         let trees = self.trees.len() as u64;
         let fixed = self.spatial.bytes() as u64 + trees * tree_fixed_bytes(deferred);
         let per_tree =

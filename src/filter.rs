@@ -62,6 +62,14 @@ pub enum DirectionalFilter {
     DeferredBox,
 }
 
+impl DirectionalFilter {
+    /// Whether the filter holds sums back for [`refine`](crate::GuidingField::refine) to spread
+    /// ([`DeferredBox`](Self::DeferredBox)), so that leaves need pending sums.
+    pub(crate) fn defers(self) -> bool {
+        self == DirectionalFilter::DeferredBox
+    }
+}
+
 /// Length of the overlap of the intervals `[a0, a1)` and `[b0, b1)`.
 #[inline]
 pub(crate) fn overlap(a0: f64, a1: f64, b0: f64, b1: f64) -> f64 {

@@ -343,8 +343,7 @@ impl RecordingTree {
 
     /// Gives every leaf pending sums, so that [`record_deferred`](Self::record_deferred) defers.
     pub(crate) fn defer(&mut self) {
-        if self.pending.len() != self.moments.len() {
-            self.flush_pending_mut();
+        if self.pending.is_empty() {
             self.pending = (0..self.moments.len())
                 .map(|_| AtomicPending::default())
                 .collect();
