@@ -126,6 +126,17 @@ fn cell_area(depth: u32) -> f64 {
     f64::from_bits(u64::from(1023 - 2 * depth) << 52)
 }
 
+/// The interval `[a, b)`, no longer than `size`, cut where it crosses a multiple of `size` (a
+/// power of 2, so the cut is exact): one or two pieces.
+fn grid_cut([a, b]: [f64; 2], size: f64) -> [Option<[f64; 2]>; 2] {
+    let line = ((a / size).floor() + 1.0) * size;
+    if line < b {
+        [Some([a, line]), Some([line, b])]
+    } else {
+        [Some([a, b]), None]
+    }
+}
+
 /// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0 (which `clamp` would not do).
 #[inline]
 #[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
@@ -293,6 +304,43 @@ impl SamplingTree {
     }
 }
 
+/// An interior node of a recording tree with its cell, where a box filter's walk starts.
+#[derive(Clone, Copy, Debug)]
+struct Walk {
+    node: u32,
+    /// The cell's corner with the smallest coordinates.
+    x: f64,
+    y: f64,
+    /// The cell's side.
+    cell: f64,
+    depth: u32,
+}
+
+impl Walk {
+    const ROOT: Walk = Walk {
+        node: 0,
+        x: 0.0,
+        y: 0.0,
+        cell: 1.0,
+        depth: 0,
+    };
+
+    /// Whether the node's cell holds the piece `[x0, x1) × [y0, y1)`.
+    fn holds(&self, [x0, x1]: [f64; 2], [y0, y1]: [f64; 2]) -> bool {
+        x0 >= self.x && y0 >= self.y && x1 <= self.x + self.cell && y1 <= self.y + self.cell
+    }
+
+    /// The last node of `path` (a chain of nodes from the root down) whose cell holds the
+    /// piece: a walk from the root would pass through it.
+    fn deepest_holding(path: &[Walk], x: [f64; 2], y: [f64; 2]) -> Walk {
+        *path
+            .iter()
+            .rev()
+            .find(|w| w.holds(x, y))
+            .unwrap_or(&Walk::ROOT)
+    }
+}
+
 /// A child slot of a recording node under construction that will become a leaf.
 const FREE: u32 = 0;
 
@@ -457,18 +505,116 @@ impl RecordingTree {
     /// Spreads each leaf's pending sums, as `take(leaf)` yields them, over a leaf-sized square
     /// centred on each quadrant, handing the shares to `add` (reads only the topology, so the
     /// sums may be moved out of the tree meanwhile).
+    ///
+    /// The shares are those [`splat_into`](Self::splat_into) hands out for each quadrant. The
+    /// leaves are visited depth first with the path down to them at hand, so that each lookup
+    /// starts at the deepest node on that path that holds what it looks for, not at the root
+    /// (see [`spread_leaf`](Self::spread_leaf)).
     fn spread_pending(
         &self,
         mut take: impl FnMut(usize) -> [(f64, f64); 4],
         add: &mut impl FnMut(usize, (f64, f64)),
     ) {
-        self.visit_leaves(|k, cell| {
-            for (q, sums) in take(k).into_iter().enumerate() {
-                let quadrant = cell.child(q);
-                let centre = quadrant.origin + Vec2::splat(0.5 * quadrant.size);
-                self.splat_into(centre, f64::from(cell.size), sums, add);
+        let mut path = vec![Walk::ROOT];
+        self.spread_below(&mut path, &mut take, add);
+    }
+
+    /// [`spread_pending`](Self::spread_pending) for the leaves below the last node of `path`.
+    fn spread_below(
+        &self,
+        path: &mut Vec<Walk>,
+        take: &mut impl FnMut(usize) -> [(f64, f64); 4],
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) {
+        let at = path[path.len() - 1];
+        let half = 0.5 * at.cell;
+        for (q, &slot) in self.nodes[at.node as usize].iter().enumerate() {
+            let child = Walk {
+                node: slot,
+                x: at.x + (q & 1) as f64 * half,
+                y: at.y + (q >> 1) as f64 * half,
+                cell: half,
+                depth: at.depth + 1,
+            };
+            if slot & LEAF_BIT == 0 {
+                path.push(child);
+                self.spread_below(path, take, add);
+                path.pop();
+                continue;
             }
-        });
+            let k = (slot & !LEAF_BIT) as usize;
+            self.spread_leaf(path, child, k, take(k), add);
+        }
+    }
+
+    /// Spreads the pending sums of leaf `k`, whose cell `leaf` is a child of the last node of
+    /// `path`, as [`splat_into`](Self::splat_into) would, with less walking.
+    ///
+    /// A quadrant's square, as large as the leaf, reaches a quarter of the leaf's side past
+    /// it. Cut along the lines of the grid of cells of the leaf's size, it falls in at most
+    /// four such cells: the leaf itself and three neighbours. Each part goes whole to the leaf
+    /// that holds its centre: that is the leaf itself, a neighbour that is a leaf, the leaf
+    /// that holds a neighbour, or, in a neighbour split finer than the square, the leaf the box
+    /// filter gives a finer region's share. So the shares are the box filter's, and each costs
+    /// one descent from the nearest node on the path. (Parts that the border folds elsewhere
+    /// are walked as the box filter walks them.)
+    fn spread_leaf(
+        &self,
+        path: &[Walk],
+        leaf: Walk,
+        k: usize,
+        sums: [(f64, f64); 4],
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) {
+        let size = leaf.cell;
+        let per_area = 1.0 / (size * size);
+        let mut own = (0.0, 0.0);
+        for (q, (w1, w2)) in sums.into_iter().enumerate() {
+            if w1 == 0.0 {
+                continue;
+            }
+            let (w1, w2) = (w1 * per_area, w2 * per_area);
+            let centre = [
+                leaf.x + (0.25 + 0.5 * (q & 1) as f64) * size,
+                leaf.y + (0.25 + 0.5 * (q >> 1) as f64) * size,
+            ];
+            let h = 0.5 * size;
+            let [inside, folded @ ..] = sphere::fold_box(
+                [centre[0] - h, centre[0] + h],
+                [centre[1] - h, centre[1] + h],
+            );
+            if let Some([x, y]) = inside {
+                for x in grid_cut(x, size).into_iter().flatten() {
+                    for y in grid_cut(y, size).into_iter().flatten() {
+                        let area = (x[1] - x[0]) * (y[1] - y[0]);
+                        let part = (w1 * area, w2 * area);
+                        let mid = [0.5 * (x[0] + x[1]), 0.5 * (y[0] + y[1])];
+                        if leaf.holds([mid[0]; 2], [mid[1]; 2]) {
+                            own = (own.0 + part.0, own.1 + part.1);
+                        } else {
+                            add(self.leaf_near(path, mid), part);
+                        }
+                    }
+                }
+            }
+            for [x, y] in folded.into_iter().flatten() {
+                if x[1] > x[0] && y[1] > y[0] {
+                    let start = Walk::deepest_holding(path, x, y);
+                    self.splat_piece(start, x, y, size, (w1, w2), add);
+                }
+            }
+        }
+        if own.0 != 0.0 {
+            add(k, own);
+        }
+    }
+
+    /// The moments slot of the leaf that holds the point `p`, found from the last node of
+    /// `path` (a chain of nodes from the root down) whose cell holds it.
+    fn leaf_near(&self, path: &[Walk], p: [f64; 2]) -> usize {
+        let start = Walk::deepest_holding(path, [p[0]; 2], [p[1]; 2]);
+        let p = Vec2::new(p[0] as f32, p[1] as f32);
+        self.leaf_below(start.node, start.depth, p)
     }
 
     /// [`record_box_sums`](Self::record_box_sums), and counts the sample where it landed.
@@ -526,16 +672,17 @@ impl RecordingTree {
             .flatten()
         {
             if x[1] > x[0] && y[1] > y[0] {
-                self.splat_piece(x, y, size, per_area, add);
+                self.splat_piece(Walk::ROOT, x, y, size, per_area, add);
             }
         }
     }
 
     /// Hands `add` `per_area` times the overlapped area for each cell that the piece
     /// `[x0, x1) × [y0, y1)` of the unit square overlaps (see [`splat`](Self::splat); `size` is
-    /// the filter's square's side).
+    /// the filter's square's side), walking down from `start`, whose cell holds the piece.
     fn splat_piece(
         &self,
+        start: Walk,
         [x0, x1]: [f64; 2],
         [y0, y1]: [f64; 2],
         size: f64,
@@ -543,8 +690,8 @@ impl RecordingTree {
         add: &mut impl FnMut(usize, (f64, f64)),
     ) {
         // 1. Down to the deepest node whose cell holds the whole piece.
-        let (mut node, mut ox, mut oy, mut cell) = (0u32, 0.0f64, 0.0f64, 1.0f64);
-        let mut depth = 0;
+        let (mut node, mut ox, mut oy, mut cell) = (start.node, start.x, start.y, start.cell);
+        let mut depth = start.depth;
         loop {
             let half = 0.5 * cell;
             let (ix, iy) = (usize::from(x0 >= ox + half), usize::from(y0 >= oy + half));
@@ -1162,6 +1309,84 @@ mod tests {
         assert_eq!(bytes_per_node(false), 312);
         assert_eq!(leaf_bytes(true), 24 + 64 + 64);
         assert_eq!(bytes_per_node(true), 504);
+    }
+
+    /// A recording tree with a random topology: each cell splits with a probability that falls
+    /// with its depth, down to depth 8, so coarse leaves border finely split regions.
+    fn random_tree(seed: u64) -> RecordingTree {
+        let mut rng = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut nodes = vec![[FREE; 4]];
+        let mut open = vec![(0usize, 0u32)];
+        while let Some((node, depth)) = open.pop() {
+            for q in 0..4 {
+                if depth < 7 && next() < 0.85 - 0.1 * f64::from(depth) {
+                    nodes.push([FREE; 4]);
+                    nodes[node][q] = (nodes.len() - 1) as u32;
+                    open.push((nodes.len() - 1, depth + 1));
+                }
+            }
+        }
+        let tree = RecordingTree::from_nodes(nodes, true);
+        for (k, pending) in tree.pending.iter().enumerate() {
+            for q in 0..4 {
+                // A quarter of the quadrants saw nothing.
+                if next() < 0.75 {
+                    let w1 = 1.0 + next() * (k % 7) as f64;
+                    pending.add(q, (w1, w1 * (1.0 + next())));
+                }
+            }
+        }
+        tree
+    }
+
+    #[test]
+    fn the_deferred_spread_hands_out_the_box_filter_shares() {
+        // Spreading a leaf's pending sums part by part (the leaf's own part directly, each
+        // neighbour's from the path) gives each leaf what the box filter's walk from the root
+        // gives, for every quadrant: on trees where coarse leaves border fine ones, and across
+        // the square's border, where the filter folds.
+        for seed in 1..=8 {
+            let tree = random_tree(seed);
+            let leaves = tree.moments.len();
+            assert!(leaves > 200, "seed {seed}: only {leaves} leaves");
+            let sums: Vec<[(f64, f64); 4]> = tree.pending.iter().map(|p| p.take()).collect();
+            let mut spread = vec![(0.0, 0.0); leaves];
+            tree.spread_pending(|k| sums[k], &mut |k, (a, b)| {
+                spread[k] = (spread[k].0 + a, spread[k].1 + b)
+            });
+            let mut walked = vec![(0.0, 0.0); leaves];
+            tree.visit_leaves(|k, cell| {
+                for (q, part) in sums[k].into_iter().enumerate() {
+                    let quadrant = cell.child(q);
+                    let centre = quadrant.origin + Vec2::splat(0.5 * quadrant.size);
+                    tree.splat_into(centre, f64::from(cell.size), part, &mut |j, (a, b)| {
+                        walked[j] = (walked[j].0 + a, walked[j].1 + b)
+                    });
+                }
+            });
+            let total: f64 = sums.iter().flatten().map(|s| s.0).sum();
+            let total_sq: f64 = sums.iter().flatten().map(|s| s.1).sum();
+            // Each share is a product of a few exact dyadic lengths and one weight, summed in
+            // another order: equal within a few ulps of the total.
+            for k in 0..leaves {
+                assert!(
+                    (spread[k].0 - walked[k].0).abs() <= 1e-14 * total,
+                    "seed {seed}, {k}"
+                );
+                assert!(
+                    (spread[k].1 - walked[k].1).abs() <= 1e-14 * total_sq,
+                    "seed {seed}, {k}"
+                );
+            }
+            let spread_total: f64 = spread.iter().map(|s| s.0).sum();
+            assert!((spread_total - total).abs() <= 1e-12 * total);
+        }
     }
 
     #[test]
