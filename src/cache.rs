@@ -685,7 +685,7 @@ fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
-        let s = &t.sampling.nodes;
+        let s = t.sampling.nodes();
         out.u32(s.len() as u32);
         for n in s.iter() {
             for p in n.px.iter().chain(n.py.iter().flatten()) {
@@ -926,9 +926,7 @@ fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<DirectionalTree, Cac
         moments.push(AtomicMoments::from_moments(mm));
     }
     Ok(DirectionalTree {
-        sampling: SamplingTree {
-            nodes: sampling.into_boxed_slice(),
-        },
+        sampling: SamplingTree::new(sampling.into_boxed_slice()),
         recording: RecordingTree {
             nodes: nodes.into_boxed_slice(),
             quadrants: (0..moments.len()).map(|_| Default::default()).collect(),

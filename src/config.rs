@@ -53,8 +53,8 @@ pub struct GuidingConfig {
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
     /// footprint above it is refused, and each directional tree is held to its share of it
-    /// (`max_memory_bytes / (trees · 312 bytes)` interior nodes, 312 bytes bounding what one
-    /// node costs, 504 under [`DirectionalFilter::DeferredBox`]); refusals are counted. Must be
+    /// (`max_memory_bytes / (trees · 336 bytes)` interior nodes, 336 bytes bounding what one
+    /// node costs, 528 under [`DirectionalFilter::DeferredBox`]); refusals are counted. Must be
     /// ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's

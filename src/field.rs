@@ -395,14 +395,23 @@ impl DirectionalDistribution<'_> {
     pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
         let (s, pdf, near_border) = self.tree.sample(u);
         let direction = square_to_direction(s);
-        // The round trip through the sphere moves a point by rounding only; a point that close
-        // to its leaf's border may come back in the neighbour, so report the density `pdf` finds.
         let pdf = if near_border {
-            sphere::square_of(direction).map_or(pdf, |back| self.tree.pdf(back))
+            self.density_across_border(direction, pdf)
         } else {
             pdf
         };
         (direction, pdf * INV_SPHERE_AREA)
+    }
+
+    /// The density on the square that `pdf` finds for a sampled `direction` whose point lay
+    /// within rounding distance of its leaf's border (`pdf` is the density the descent found).
+    /// The round trip through the sphere moves a point by rounding only, but a point that close
+    /// to the border may come back in the neighbour. Rarely taken, and kept out of line so that
+    /// the inverse map does not weigh on how `sample` is compiled.
+    #[cold]
+    #[inline(never)]
+    fn density_across_border(&self, direction: Vec3, pdf: f32) -> f32 {
+        sphere::square_of(direction).map_or(pdf, |back| self.tree.pdf(back))
     }
 
     /// The solid-angle density of drawing `direction` (which need not be unit length; a zero or
