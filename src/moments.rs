@@ -74,6 +74,12 @@ impl AtomicF64 {
         f64::from_bits(self.0.load(Ordering::Relaxed))
     }
 
+    /// The value's bits, by a plain load.
+    #[inline]
+    fn bits(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
+    }
+
     /// Reads the value and leaves zero in its place, in one atomic step: an add racing with it
     /// lands either in what is returned or in what stays.
     pub(crate) fn take(&self) -> f64 {
@@ -127,6 +133,13 @@ impl AtomicMoments {
             self.sum.add_mut(w1);
             self.sum_sq.add_mut(w2);
         }
+    }
+
+    /// Loads the first and last words by plain loads, which bring the cell's cache lines in
+    /// without waiting for each other (see `quadtree::Shares`); the result means nothing.
+    #[inline]
+    pub(crate) fn touch(&self) -> u64 {
+        self.sum.bits() ^ self.count.load(Ordering::Relaxed)
     }
 
     /// Counts one sample.
@@ -192,6 +205,12 @@ impl AtomicQuadrants {
             self.sum_sq[q].add(w2);
         }
         self.count[q].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// [`AtomicMoments::touch`] for quadrant `q`'s words.
+    #[inline]
+    pub(crate) fn touch(&self, q: usize) -> u64 {
+        self.sum_sq[q].bits() ^ self.count[q].load(Ordering::Relaxed)
     }
 
     pub(crate) fn get(&self) -> Quadrants {
