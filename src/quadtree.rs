@@ -446,8 +446,13 @@ impl Ancestry {
 
     /// The leaf's cell: its corner with the smallest coordinates.
     fn corner(&self) -> [f64; 2] {
-        let shift = FIXED_BITS - self.depth;
-        self.at.map(|c| f64::from(c >> shift) * self.side())
+        self.corner_at(self.depth)
+    }
+
+    /// The corner of the cell at depth `d` that holds the leaf (`d` at most the leaf's depth).
+    fn corner_at(&self, d: u32) -> [f64; 2] {
+        let shift = FIXED_BITS - d;
+        self.at.map(|c| f64::from(c >> shift) * cell_area(d).sqrt())
     }
 
     /// Whether the point `p` lies in the leaf's cell.
@@ -472,13 +477,12 @@ impl Ancestry {
         (0..self.depth)
             .rev()
             .map(|d| {
-                let cell = cell_area(d).sqrt();
-                let shift = FIXED_BITS - d;
+                let [x, y] = self.corner_at(d);
                 Walk {
                     node: self.nodes[d as usize],
-                    x: f64::from(self.at[0] >> shift) * cell,
-                    y: f64::from(self.at[1] >> shift) * cell,
-                    cell,
+                    x,
+                    y,
+                    cell: cell_area(d).sqrt(),
                     depth: d,
                 }
             })
