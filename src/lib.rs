@@ -48,7 +48,9 @@
 //! - [`sphere`]: the equal-area map between directions and the unit square.
 //! - `moments`: the per-cell sums `Σ v/p`, `Σ v²/p`, `n` and their lock-free accumulation.
 //! - `rule`: [`LeafRule`], how moments become leaf masses.
-//! - `quadtree`: the double-buffered directional quadtree (sample, pdf, record, refine).
+//! - `quadtree`: the double-buffered directional quadtree: `sampling` (what `sample` and `pdf`
+//!   descend), `recording` (what `record` adds to), `splat` (the directional box filter) and
+//!   `refine` (the next distribution and topology).
 //! - [`refinement`]: which directional cells to split — by flux share, or by the variance a
 //!   split removes.
 //! - `spatial`: the binary tree over the scene's bounding cube.

@@ -136,7 +136,7 @@ impl AtomicMoments {
     }
 
     /// Loads the first and last words by plain loads, which bring the cell's cache lines in
-    /// without waiting for each other (see `quadtree::Shares`); the result means nothing.
+    /// without waiting for each other (see `quadtree::splat::Shares`); the result means nothing.
     #[inline]
     pub(crate) fn touch(&self) -> u64 {
         self.sum.bits() ^ self.count.load(Ordering::Relaxed)

@@ -1,0 +1,266 @@
+//! The directional quadtree over the unit square (the sphere, through [`crate::sphere`]).
+//!
+//! Each spatial leaf owns one [`DirectionalTree`], double-buffered as the design asks:
+//!
+//! - a [`SamplingTree`] (`sampling`): read-only during an iteration, it holds for each node the
+//!   probability of each of its four quadrants, and the cuts of `u` that `sample` descends by.
+//!   `sample` and `pdf` descend it without locks or allocation.
+//! - a [`RecordingTree`] (`recording`): the topology for the current iteration with atomic
+//!   moments and quadrant sums per leaf. Recording descends it and adds to its leaves; interior
+//!   sums are never kept. The directional box filter's shares, found from the sample's own leaf
+//!   at `record` or from each leaf quadrant's pending sums at `refine`, are `splat`'s.
+//!
+//! [`DirectionalTree::refine`] (`refine`) ends an iteration: it turns the leaf moments into
+//! masses with the active [`LeafRule`](crate::LeafRule), mixes in the uniform floor, sums
+//! interior masses bottom-up into the next sampling tree, and derives the next recording
+//! topology by the active [`Refinement`](crate::Refinement): split the cells whose share of
+//! those masses exceeds ρ (flux share), or whose split gain, estimated from the quadrant sums,
+//! exceeds its threshold (variance gain); collapse the others.
+//!
+//! Quadrants are numbered `q = ix + 2·iy`, with `ix = [s.x ≥ ½]` and `iy = [s.y ≥ ½]` in the
+//! node's local frame. Nodes are stored so that a child always comes after its parent, which
+//! lets bottom-up passes run as one reverse sweep. Descents locate points in fixed point
+//! ([`fixed`]), so that every descent agrees on which cell holds a point.
+
+mod recording;
+mod refine;
+mod sampling;
+mod splat;
+
+pub(crate) use recording::RecordingTree;
+pub(crate) use refine::{RefineOutcome, RefineParams};
+pub(crate) use sampling::{SamplingNode, SamplingTree};
+
+use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
+use crate::selection::GuideSelection;
+use glam::Vec2;
+#[cfg(test)]
+use recording::FREE;
+use sampling::Cuts;
+
+/// In a [`RecordingTree`] node, marks a child slot as a leaf; the low bits index its moments.
+pub(crate) const LEAF_BIT: u32 = 1 << 31;
+
+/// In a [`SamplingTree`] node, the child index of a leaf (the root is node 0, nobody's child).
+pub(crate) const NO_CHILD: u16 = 0;
+
+/// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
+pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
+
+/// Bytes one recording leaf holds: its moments (24) and its quadrant sums (64), and under the
+/// deferred box filter its pending sums (64 more).
+pub(crate) const fn leaf_bytes(deferred: bool) -> u64 {
+    let pending = if deferred {
+        size_of::<AtomicPending>()
+    } else {
+        0
+    };
+    (size_of::<AtomicMoments>() + size_of::<AtomicQuadrants>() + pending) as u64
+}
+
+/// Upper bound on the bytes one interior node costs a directional tree: its sampling node (32)
+/// and the cuts `sample` descends by (24), its recording node (16), and the three leaves it
+/// adds net (336 in all; 528 under the deferred box filter).
+pub(crate) const fn bytes_per_node(deferred: bool) -> u64 {
+    (size_of::<SamplingNode>() + size_of::<Cuts>() + size_of::<[u32; 4]>()) as u64
+        + 3 * leaf_bytes(deferred)
+}
+
+/// Bits of the fixed-point square coordinates descents use: deeper than any tree (20 levels).
+const FIXED_BITS: u32 = 24;
+
+/// A point of `[0,1)²` as `FIXED_BITS`-bit integers: at depth `d` (1-based) the quadrant bits
+/// are bit `FIXED_BITS − d` of each. Exact: `floor(s·2^24) >> (24 − d) = floor(s·2^d)`.
+#[inline]
+fn fixed(s: Vec2) -> [u32; 2] {
+    let scale = (1u32 << FIXED_BITS) as f32;
+    let max = (1u32 << FIXED_BITS) - 1;
+    // `as` saturates (NaN becomes 0), and `min` keeps 1.0 itself inside.
+    [(s.x * scale) as u32, (s.y * scale) as u32].map(|v| v.min(max))
+}
+
+/// [`fixed`] for a point in `f64`, exactly: `floor(p·2^24)`. The box filter finds where its
+/// parts' centres lie with it, and a part can be a sliver a hair from a cell's border, whose
+/// centre rounding to `f32` could move across it.
+#[inline]
+fn fixed_f64(p: [f64; 2]) -> [u32; 2] {
+    let scale = f64::from(1u32 << FIXED_BITS);
+    let max = (1u32 << FIXED_BITS) - 1;
+    p.map(|c| ((c * scale) as u32).min(max))
+}
+
+/// The quadrant bits of a fixed-point point at depth `d`.
+#[inline]
+fn quadrant_bits(p: [u32; 2], d: u32) -> (usize, usize) {
+    let shift = FIXED_BITS - d;
+    (
+        ((p[0] >> shift) & 1) as usize,
+        ((p[1] >> shift) & 1) as usize,
+    )
+}
+
+/// `4^-depth`, the area of a cell at `depth`, built from its exponent bits (no `powi` call).
+#[inline]
+fn cell_area(depth: u32) -> f64 {
+    f64::from_bits(u64::from(1023 - 2 * depth) << 52)
+}
+
+/// A directional cell: the square `[origin, origin + size)` of the unit square at `depth` (the
+/// root's children are at depth 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DirectionalCell {
+    /// The cell's corner with the smallest coordinates, on the unit square.
+    pub origin: Vec2,
+    /// The cell's side: `2^-depth`.
+    pub size: f32,
+    /// The cell's level in the quadtree.
+    pub depth: u32,
+}
+
+impl DirectionalCell {
+    /// The fraction of the square (and of the sphere) the cell covers.
+    pub fn area(&self) -> f64 {
+        f64::from(self.size) * f64::from(self.size)
+    }
+
+    /// Whether the cell holds the point `s` of the unit square (its lower sides in, its upper
+    /// sides out, as the quadtree descends). With [`sphere::direction_to_square`], this finds
+    /// the leaf that holds a direction among a distribution's
+    /// [`leaves`](crate::DirectionalDistribution::leaves).
+    ///
+    /// ```
+    /// use glam::Vec2;
+    /// use sdguide::DirectionalCell;
+    /// let cell = DirectionalCell { origin: Vec2::new(0.5, 0.25), size: 0.25, depth: 2 };
+    /// assert!(cell.contains(Vec2::new(0.5, 0.25)));
+    /// assert!(cell.contains(Vec2::new(0.7, 0.4)));
+    /// assert!(!cell.contains(Vec2::new(0.75, 0.3)));
+    /// ```
+    ///
+    /// [`sphere::direction_to_square`]: crate::sphere::direction_to_square
+    pub fn contains(&self, s: Vec2) -> bool {
+        let (lo, hi) = (self.origin, self.origin + Vec2::splat(self.size));
+        s.cmpge(lo).all() && s.cmplt(hi).all()
+    }
+
+    pub(crate) fn child(&self, q: usize) -> DirectionalCell {
+        let half = 0.5 * self.size;
+        let offset = Vec2::new((q & 1) as f32, (q >> 1) as f32) * half;
+        DirectionalCell {
+            origin: self.origin + offset,
+            size: half,
+            depth: self.depth + 1,
+        }
+    }
+
+    const ROOT: DirectionalCell = DirectionalCell {
+        origin: Vec2::ZERO,
+        size: 1.0,
+        depth: 0,
+    };
+}
+
+/// A spatial leaf's directional knowledge: what queries sample, and what recording fills.
+#[derive(Clone, Debug)]
+pub(crate) struct DirectionalTree {
+    pub(crate) sampling: SamplingTree,
+    pub(crate) recording: RecordingTree,
+    /// The spatial leaf's learned guide-vs-BSDF selection probability.
+    pub(crate) selection: GuideSelection,
+}
+
+impl Default for DirectionalTree {
+    fn default() -> Self {
+        Self {
+            sampling: SamplingTree::uniform(),
+            recording: RecordingTree::root(),
+            selection: GuideSelection::default(),
+        }
+    }
+}
+
+impl DirectionalTree {
+    /// Bytes held by both buffers.
+    pub(crate) fn bytes(&self) -> usize {
+        self.sampling.bytes() + self.recording.bytes()
+    }
+}
+
+/// Random trees for the tests of the submodules.
+#[cfg(test)]
+mod testing {
+    use super::{FREE, RecordingTree, SamplingNode, SamplingTree};
+
+    /// A xorshift generator of numbers in `[0, 1)`.
+    pub(super) fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut rng = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    /// A random topology (children after their parents, leaf slots `FREE`): each cell splits
+    /// with a probability that falls with its depth, down to depth 8, so coarse leaves border
+    /// finely split regions.
+    pub(super) fn random_topology(next: &mut impl FnMut() -> f64) -> Vec<[u32; 4]> {
+        let mut nodes = vec![[FREE; 4]];
+        let mut open = vec![(0usize, 0u32)];
+        while let Some((node, depth)) = open.pop() {
+            for q in 0..4 {
+                if depth < 7 && next() < 0.85 - 0.1 * f64::from(depth) {
+                    nodes.push([FREE; 4]);
+                    nodes[node][q] = (nodes.len() - 1) as u32;
+                    open.push((nodes.len() - 1, depth + 1));
+                }
+            }
+        }
+        nodes
+    }
+
+    /// A recording tree with a random topology and pending sums in most leaf quadrants.
+    pub(super) fn random_tree(seed: u64) -> RecordingTree {
+        let mut next = uniform(seed);
+        let tree = RecordingTree::from_nodes(random_topology(&mut next), true);
+        for (k, pending) in tree.pending.iter().enumerate() {
+            for q in 0..4 {
+                // A quarter of the quadrants saw nothing.
+                if next() < 0.75 {
+                    let w1 = 1.0 + next() * (k % 7) as f64;
+                    pending.add(q, (w1, w1 * (1.0 + next())));
+                }
+            }
+        }
+        tree
+    }
+
+    /// A sampling tree with a random topology, and quadrant masses spread over nine orders
+    /// of magnitude.
+    pub(super) fn random_sampling_tree(seed: u64) -> SamplingTree {
+        let mut next = uniform(seed);
+        let nodes = random_topology(&mut next)
+            .iter()
+            .map(|slots| {
+                let masses = [(); 4].map(|_| 10f64.powf(-9.0 * next()));
+                SamplingNode::from_masses(masses, slots.map(|s| s as u16))
+            })
+            .collect();
+        SamplingTree::new(nodes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_node_costs_what_the_configuration_documents() {
+        assert_eq!(leaf_bytes(false), 24 + 64);
+        assert_eq!(std::mem::size_of::<Cuts>(), 24);
+        assert_eq!(bytes_per_node(false), 336);
+        assert_eq!(leaf_bytes(true), 24 + 64 + 64);
+        assert_eq!(bytes_per_node(true), 528);
+    }
+}

@@ -1,0 +1,501 @@
+//! How a directional tree ends an iteration: leaf moments shrunk toward their parents', leaf
+//! masses by the active rule, the next sampling tree, and the next recording topology grown
+//! from split keys (flux share, or variance gain from the quadrant sums).
+
+use super::{
+    DirectionalTree, LEAF_BIT, NO_CHILD, RecordingTree, SamplingNode, SamplingTree, cell_area,
+    recording::FREE,
+};
+use crate::moments::AtomicMoments;
+use crate::refinement::{
+    MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, SPLIT_PRIOR_SAMPLES, split_gain,
+};
+use crate::{LeafRule, Refinement};
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+/// How the recorded statistics of one iteration become a distribution and a new topology.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RefineParams {
+    pub rule: LeafRule,
+    pub uniform_fraction: f64,
+    pub refinement: Refinement,
+    pub subdivision_threshold: f64,
+    pub gain_threshold: f64,
+    pub max_depth: u32,
+    pub max_nodes: u32,
+    pub prior_samples: f64,
+    /// Whether recording defers the directional box filter to refine (give leaves pending sums).
+    pub deferred: bool,
+}
+
+/// What one directional refine did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct RefineOutcome {
+    /// Samples the tree had recorded in the iteration that ended.
+    pub samples: u64,
+    /// Cells that qualified for a split but were refused by `max_nodes`.
+    pub refused: u64,
+}
+
+/// Shrunk `(S1, S2)` estimates of a recording tree's cells.
+struct ShrunkMoments {
+    /// Per interior node.
+    nodes: Vec<(f64, f64)>,
+    /// Per leaf (moments index).
+    leaves: Vec<(f64, f64)>,
+}
+
+/// What a candidate cell was in the ended iteration's recording tree.
+#[derive(Clone, Copy, Debug)]
+enum Origin {
+    /// Interior node `n`.
+    Interior(u32),
+    /// Leaf `k` (moments index).
+    Leaf(u32),
+    /// Below the ended iteration's leaves.
+    New,
+}
+
+/// A candidate cell during refinement, ordered by its key (share of the mass, or gain).
+struct Candidate {
+    key: f64,
+    cell_depth: u32,
+    origin: Origin,
+    /// The new node and quadrant that will point to this cell.
+    parent: (u32, usize),
+}
+
+/// How refinement ranks the cells of the ended iteration and decides to split them: a cell
+/// splits while its key exceeds `threshold`.
+struct SplitKeys {
+    /// Per interior node of the ended iteration and quadrant: the key of the cell in that slot.
+    slot: Vec<[f64; 4]>,
+    /// Variance gain: per leaf of the ended iteration, the predicted gains of its quadrants (and
+    /// no split below them). Flux share: `None`, a cell below the old leaves has a quarter of
+    /// its parent's share.
+    below_leaf: Option<Vec<[f64; 4]>>,
+    threshold: f64,
+}
+
+impl SplitKeys {
+    /// The keys and origins of the four children of a cell.
+    fn children(&self, old: &[[u32; 4]], origin: Origin, key: f64) -> [(f64, Origin); 4] {
+        std::array::from_fn(|q| match origin {
+            Origin::Interior(o) => {
+                let slot = old[o as usize][q];
+                let origin = if slot & LEAF_BIT != 0 {
+                    Origin::Leaf(slot & !LEAF_BIT)
+                } else {
+                    Origin::Interior(slot)
+                };
+                (self.slot[o as usize][q], origin)
+            }
+            Origin::Leaf(k) => match &self.below_leaf {
+                Some(gains) => (gains[k as usize][q], Origin::New),
+                None => (0.25 * key, Origin::New),
+            },
+            Origin::New => match &self.below_leaf {
+                Some(_) => (0.0, Origin::New),
+                None => (0.25 * key, Origin::New),
+            },
+        })
+    }
+}
+
+impl PartialEq for Candidate {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for Candidate {}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Candidate {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.key.total_cmp(&other.key)
+    }
+}
+
+/// The cells refinement has still to decide on: a stack (depth first) or a max-heap by key.
+trait Frontier {
+    fn push(&mut self, c: Candidate);
+    fn pop(&mut self) -> Option<Candidate>;
+    /// Whether cells come out largest key first.
+    fn ordered(&self) -> bool;
+}
+
+impl Frontier for Vec<Candidate> {
+    fn push(&mut self, c: Candidate) {
+        Vec::push(self, c);
+    }
+    fn pop(&mut self) -> Option<Candidate> {
+        Vec::pop(self)
+    }
+    fn ordered(&self) -> bool {
+        false
+    }
+}
+
+impl Frontier for BinaryHeap<Candidate> {
+    fn push(&mut self, c: Candidate) {
+        BinaryHeap::push(self, c);
+    }
+    fn pop(&mut self) -> Option<Candidate> {
+        BinaryHeap::pop(self)
+    }
+    fn ordered(&self) -> bool {
+        true
+    }
+}
+
+/// A grown topology: interior nodes with leaf slots `FREE`, and what the cap did.
+struct Grown {
+    nodes: Vec<[u32; 4]>,
+    refused: u64,
+    gave_up: bool,
+}
+
+impl DirectionalTree {
+    /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
+    /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
+    pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
+        self.selection.step();
+        self.recording.flush_pending_mut();
+        let samples = self.recording.count();
+        if samples == 0 {
+            // Nothing landed here; shares a box filter spread in from neighbouring spatial
+            // leaves are not enough to learn from (shrinkage weighs by counted samples), so
+            // they are dropped with the iteration, and the distribution stays.
+            for m in self.recording.moments.iter_mut() {
+                *m = AtomicMoments::default();
+            }
+            return RefineOutcome::default();
+        }
+        let rec = &self.recording;
+        let depth = rec.depths();
+
+        // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
+        //    shrunk toward their parents' (see `shrunk_moments`).
+        let shrunk = rec.shrunk_moments(params.prior_samples);
+        let leaf_moments = &shrunk.leaves;
+        let mut leaf_mass = vec![0.0f64; rec.moments.len()];
+        for (i, slots) in rec.nodes.iter().enumerate() {
+            for &slot in slots {
+                if slot & LEAF_BIT != 0 {
+                    let k = (slot & !LEAF_BIT) as usize;
+                    let (s1, s2) = leaf_moments[k];
+                    leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), s1, s2);
+                }
+            }
+        }
+        let total: f64 = leaf_mass.iter().sum();
+        let lit = total > 0.0 && total.is_finite();
+
+        // 2. Per node and quadrant: the learned share α (drives refinement) and the sampled mass
+        //    (1−ε)·α + ε·|C| (drives sampling), summed bottom-up in one reverse sweep.
+        let eps = if lit { params.uniform_fraction } else { 1.0 };
+        let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
+        let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
+        for i in (0..rec.nodes.len()).rev() {
+            let area = cell_area(depth[i] + 1);
+            for (q, &slot) in rec.nodes[i].iter().enumerate() {
+                let (s, m) = if slot & LEAF_BIT != 0 {
+                    let a = if lit {
+                        leaf_mass[(slot & !LEAF_BIT) as usize] / total
+                    } else {
+                        0.0
+                    };
+                    (a, (1.0 - eps) * a + eps * area)
+                } else {
+                    let c = slot as usize;
+                    (share[c].iter().sum(), mass[c].iter().sum())
+                };
+                share[i][q] = s;
+                mass[i][q] = m;
+            }
+        }
+        let sampling = SamplingTree::new(
+            rec.nodes
+                .iter()
+                .zip(&mass)
+                .map(|(slots, &m)| {
+                    // Interior indices fit: `max_nodes` is validated to at most `MAX_NODES`.
+                    let child = slots.map(|s| {
+                        if s & LEAF_BIT != 0 {
+                            NO_CHILD
+                        } else {
+                            s as u16
+                        }
+                    });
+                    SamplingNode::from_masses(m, child)
+                })
+                .collect(),
+        );
+
+        // 3. The next topology: split by share (from the same shares) or by variance gain.
+        let keys = match params.refinement {
+            Refinement::FluxShare => SplitKeys {
+                slot: share,
+                below_leaf: None,
+                threshold: params.subdivision_threshold,
+            },
+            Refinement::VarianceGain => rec.gain_keys(&depth, params),
+        };
+        let (recording, refused) = self.refined_topology(&keys, params);
+        self.sampling = sampling;
+        self.recording = recording;
+        RefineOutcome { samples, refused }
+    }
+
+    /// Grows a new topology from the root: a cell whose key exceeds the threshold becomes
+    /// interior (its children's keys come from the ended iteration where it was interior or a
+    /// leaf, and are predicted below — so one refine can add several levels); every other
+    /// cell is a leaf, which collapses whatever lay below it.
+    ///
+    /// Depth first while the node cap is not reached; when it would be, the tree is grown again
+    /// largest key first, so the cap refuses the least important splits.
+    fn refined_topology(&self, keys: &SplitKeys, params: &RefineParams) -> (RecordingTree, u64) {
+        let mut grown = self.grow(keys, params, Vec::new());
+        if grown.gave_up {
+            grown = self.grow(keys, params, BinaryHeap::new());
+        }
+        (
+            RecordingTree::from_nodes(grown.nodes, params.deferred),
+            grown.refused,
+        )
+    }
+
+    /// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
+    /// refuses (and counts) further splits; an unordered one gives up.
+    fn grow(&self, keys: &SplitKeys, params: &RefineParams, mut frontier: impl Frontier) -> Grown {
+        let old = &self.recording.nodes;
+        let mut out = Grown {
+            nodes: vec![[FREE; 4]],
+            refused: 0,
+            gave_up: false,
+        };
+        let push_children = |frontier: &mut dyn Frontier, new: u32, c: &Candidate| {
+            for (q, (key, origin)) in keys.children(old, c.origin, c.key).into_iter().enumerate() {
+                frontier.push(Candidate {
+                    key,
+                    cell_depth: c.cell_depth + 1,
+                    origin,
+                    parent: (new, q),
+                });
+            }
+        };
+        let root = Candidate {
+            key: f64::INFINITY,
+            cell_depth: 0,
+            origin: Origin::Interior(0),
+            parent: (0, 0),
+        };
+        push_children(&mut frontier, 0, &root);
+        while let Some(c) = frontier.pop() {
+            if c.key <= keys.threshold || c.cell_depth >= params.max_depth {
+                continue;
+            }
+            if out.nodes.len() >= params.max_nodes as usize {
+                if !frontier.ordered() {
+                    out.gave_up = true;
+                    return out;
+                }
+                out.refused += 1;
+                continue;
+            }
+            let new = out.nodes.len() as u32;
+            out.nodes.push([FREE; 4]);
+            out.nodes[c.parent.0 as usize][c.parent.1] = new;
+            push_children(&mut frontier, new, &c);
+        }
+        out
+    }
+}
+
+// What `DirectionalTree::refine` reads off the ended iteration. Each is called once per refine and
+// marked `#[inline]`: left out of line, as the split into modules left them, `refine` took 1–2%
+// longer.
+impl RecordingTree {
+    /// Each leaf's `(S1, S2)` shrunk toward its parent's: top-down, a cell's estimate is
+    /// `w · (its own pooled sums) + (1 − w) · (its parent's estimate) / 4` with
+    /// `w = n / (n + n0)`, `n` the samples that fell in the cell and `n0 = prior_samples`.
+    ///
+    /// Sums over a few samples of heavy-tailed values are mostly too small (and sometimes far
+    /// too large); a leaf whose mass is underestimated costs `m_i/α_i`, without bound. Pooling
+    /// a sparse leaf with its siblings — which estimate neighbouring parts of the same light —
+    /// bounds that, and leaves well-sampled leaves (`n ≫ n0`) as they were. `n0 = 0` turns it off.
+    ///
+    /// Returns the estimates of every interior node (the root's is its pooled sums) and of
+    /// every leaf.
+    #[inline]
+    fn shrunk_moments(&self, prior_samples: f64) -> ShrunkMoments {
+        self.shrink(prior_samples, |k| {
+            let m = self.moments[k].get();
+            (m.sum, m.sum_sq, m.count)
+        })
+    }
+
+    /// [`shrunk_moments`](Self::shrunk_moments) of any per-leaf sums `(S1, S2, n)`.
+    fn shrink(&self, prior_samples: f64, leaf: impl Fn(usize) -> (f64, f64, u64)) -> ShrunkMoments {
+        let n = self.nodes.len();
+        // Pooled sums per node, bottom-up (children have larger indices than their parents).
+        let mut pooled = vec![(0.0f64, 0.0f64, 0u64); n];
+        let slot_moments = |slot: u32, pooled: &[(f64, f64, u64)]| {
+            if slot & LEAF_BIT != 0 {
+                leaf((slot & !LEAF_BIT) as usize)
+            } else {
+                pooled[slot as usize]
+            }
+        };
+        for i in (0..n).rev() {
+            pooled[i] = self.nodes[i].iter().fold((0.0, 0.0, 0), |a, &slot| {
+                let m = slot_moments(slot, &pooled);
+                (a.0 + m.0, a.1 + m.1, a.2.saturating_add(m.2))
+            });
+        }
+        // Shrunk estimates, top-down.
+        let mut estimate = vec![(0.0f64, 0.0f64); n];
+        let mut leaves = vec![(0.0f64, 0.0f64); self.moments.len()];
+        estimate[0] = (pooled[0].0, pooled[0].1);
+        for i in 0..n {
+            let prior = (0.25 * estimate[i].0, 0.25 * estimate[i].1);
+            for &slot in &self.nodes[i] {
+                let (s1, s2, count) = slot_moments(slot, &pooled);
+                let w = if prior_samples > 0.0 {
+                    count as f64 / (count as f64 + prior_samples)
+                } else {
+                    1.0
+                };
+                let e = (w * s1 + (1.0 - w) * prior.0, w * s2 + (1.0 - w) * prior.1);
+                if slot & LEAF_BIT != 0 {
+                    leaves[(slot & !LEAF_BIT) as usize] = e;
+                } else {
+                    estimate[slot as usize] = e;
+                }
+            }
+        }
+        ShrunkMoments {
+            nodes: estimate,
+            leaves,
+        }
+    }
+
+    /// Split keys for [`Refinement::VarianceGain`]: each cell's estimated gain
+    /// `sqrt(m) − Σ_q sqrt(m_q)` (in units of `sqrt(|C|·S2)` of the shrunk sums), and the
+    /// threshold `gain_threshold · Σ_leaves sqrt(m)`. Interior cells take their children's
+    /// estimates, leaves their quadrant sums (see [`crate::refinement`]).
+    #[inline]
+    fn gain_keys(&self, depth: &[u32], params: &RefineParams) -> SplitKeys {
+        let quadrants: Vec<_> = self.quadrants.iter().map(|q| q.get()).collect();
+        // Every cell's second moment from the same unfiltered samples as the quadrant sums, so
+        // that a cell's gain means the same whether it was a leaf or interior.
+        let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| {
+            quadrants[k]
+                .iter()
+                .fold((0.0, 0.0, 0), |(_, s2, n), &(s, c)| {
+                    (0.0, s2 + s, n.saturating_add(c))
+                })
+        });
+        let root_of = |s2: f64, d: u32| (cell_area(d) * s2.max(0.0)).sqrt();
+        let node_root: Vec<f64> = (0..self.nodes.len())
+            .map(|i| root_of(shrunk.nodes[i].1, depth[i]))
+            .collect();
+        let slot_root = |i: usize, s: u32| match s & LEAF_BIT {
+            0 => node_root[s as usize],
+            _ => root_of(shrunk.leaves[(s & !LEAF_BIT) as usize].1, depth[i] + 1),
+        };
+        // Each interior cell's gain, sqrt(m) − Σ_children sqrt(m). A cell's own sums are
+        // shrunk toward a quarter of its parent's, and its children's toward a quarter of its
+        // own. Where the parent holds a sharp lobe, that quarter is thousands of times a flat
+        // sibling's sums, so the sibling's estimate grows while its children's barely do. The
+        // sibling then shows a gain it does not have, and the tree refines a halo around the
+        // lobe. Taking a cell's sums as the sum of its children's estimates removes the halo.
+        // Measured in the quality harness, that raised the variance on every field at the
+        // default thresholds, and at a node budget it lowered the partitions' oracle but not
+        // below flux share's (docs/quality.md, "Why the gain partitions trail in those two
+        // cells").
+        let node_gain: Vec<f64> = self
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, slots)| {
+                (node_root[i] - slots.iter().map(|&s| slot_root(i, s)).sum::<f64>()).max(0.0)
+            })
+            .collect();
+        // What each interior cell's subtree gained in all, its interior nodes and the samples
+        // that landed in it, bottom-up.
+        let leaf_count = |k: usize| quadrants[k].iter().fold(0u64, |a, q| a.saturating_add(q.1));
+        let mut subtree = vec![(0.0f64, 0.0f64, 0u64); self.nodes.len()];
+        for i in (0..self.nodes.len()).rev() {
+            let mut acc = (node_gain[i], 1.0, 0u64);
+            for &s in &self.nodes[i] {
+                if s & LEAF_BIT == 0 {
+                    let c = subtree[s as usize];
+                    acc = (acc.0 + c.0, acc.1 + c.1, acc.2.saturating_add(c.2));
+                } else {
+                    acc.2 = acc.2.saturating_add(leaf_count((s & !LEAF_BIT) as usize));
+                }
+            }
+            subtree[i] = acc;
+        }
+        // A cell that saw fewer than `least` samples does not split: MIN_SPLIT_SAMPLES for
+        // cells of the ended iteration, MIN_PREDICTED_SPLIT_SAMPLES for a leaf's quadrants.
+        let enough = |n: u64, least: u64, key: f64| if n >= least { key } else { 0.0 };
+        let mut slot = vec![[0.0f64; 4]; self.nodes.len()];
+        let mut below_leaf = vec![[0.0f64; 4]; self.moments.len()];
+        let mut total = 0.0;
+        for (i, slots) in self.nodes.iter().enumerate() {
+            // A leaf's relative gain is shrunk toward its parent's.
+            let parent = if node_root[i] > 0.0 {
+                node_gain[i] / node_root[i]
+            } else {
+                0.0
+            };
+            for (q, &s) in slots.iter().enumerate() {
+                slot[i][q] = if s & LEAF_BIT == 0 {
+                    // One level's gain, or what the whole known subtree gained per node spent
+                    // if that is more: a split that pays only further down is kept.
+                    let (gain, nodes, n) = subtree[s as usize];
+                    enough(
+                        n,
+                        MIN_SPLIT_SAMPLES,
+                        node_gain[s as usize].max(gain / nodes),
+                    )
+                } else {
+                    let k = (s & !LEAF_BIT) as usize;
+                    let e = split_gain(&quadrants[k], SPLIT_PRIOR_SAMPLES, parent);
+                    let r = slot_root(i, s);
+                    total += r;
+                    below_leaf[k] = std::array::from_fn(|c| {
+                        let key = r * e.fractions[c] * e.relative_gain;
+                        enough(quadrants[k][c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
+                    });
+                    enough(leaf_count(k), MIN_SPLIT_SAMPLES, r * e.relative_gain)
+                };
+            }
+        }
+        SplitKeys {
+            slot,
+            below_leaf: Some(below_leaf),
+            threshold: params.gain_threshold * total,
+        }
+    }
+
+    /// The depth of every node (the root is 0), from one forward sweep.
+    #[inline]
+    fn depths(&self) -> Vec<u32> {
+        let mut depth = vec![0u32; self.nodes.len()];
+        for i in 0..self.nodes.len() {
+            for &slot in &self.nodes[i] {
+                if slot & LEAF_BIT == 0 {
+                    depth[slot as usize] = depth[i] + 1;
+                }
+            }
+        }
+        depth
+    }
+}
