@@ -1,11 +1,13 @@
 //! The quality harness's claims, as tests: the learned estimator is unbiased, the exact second
 //! moment agrees with Monte Carlo, the l2 rule beats the l1 rule on every light field (clearly
-//! on the noisy ones), no density beats the oracle, refinement by variance gain beats refinement
-//! by flux share at equal node counts, and the learned guide-vs-BSDF selection beats the fixed ½.
+//! on the noisy ones), no density beats the oracle, the l2 density comes within 1.15× of it,
+//! refinement by variance gain beats refinement by flux share at equal node counts, and the
+//! learned guide-vs-BSDF selection beats the fixed ½.
 //!
 //! Fixed seeds; a smaller budget than the harness's default (5 iterations from 100k samples) to
-//! keep the tests quick. The harness's own table (`cargo run --release --example quality`) uses
-//! the default budget.
+//! keep the tests quick, but for the distance to the oracle, which is a claim about the default
+//! budget. The harness's own table (`cargo run --release --example quality`) uses the default
+//! budget.
 
 use sdguide::quality::{self, Budget, Holdout, Report, TestField, cell_integrals};
 use sdguide::synthetic::Rng;
@@ -113,6 +115,56 @@ fn l2_beats_l1_on_every_field_and_clearly_on_the_noisy_ones() {
             assert!(v.learned < 0.2 * v.uniform, "{}: {v:?}", field.name);
         }
     }
+}
+
+/// `L2 / oracle` of `field` trained with the default configuration for `budget`, measured as
+/// the harness's tables are (the default held-out positions).
+fn ratio_to_the_oracle(field: &TestField, budget: Budget) -> f64 {
+    let trained = quality::train(field, GuidingConfig::default(), budget).unwrap();
+    let v = trained.evaluate(field, Holdout::default()).variances;
+    assert!(v.oracle <= v.learned, "{}: {v:?}", field.name);
+    v.learned / v.oracle
+}
+
+/// How far the learned l2 density may stay from the oracle on its own partition: the target
+/// the harness holds the library to.
+const WITHIN_ORACLE: f64 = 1.15;
+
+#[test]
+fn l2_is_within_1_15_of_the_oracle_at_the_default_budget() {
+    // The harness's default budget (5 iterations of 250k·2^k samples), training seed 1, 256
+    // held-out positions per cell: the protocol of docs/quality.md's leaf-rules table. The
+    // variances are exact for the trained field, so the bound is the target itself, with no
+    // allowance for evaluation noise.
+    //
+    // Not on the noisy sharp lobe: there the ratio is 1.17–1.23 over training seeds at this
+    // budget. Its gap sits in leaves whose sums rest on a few of the lobe's rare non-zero
+    // values, and it closes with samples (next test); docs/quality.md lists what was tried.
+    for field in &TestField::all()[..3] {
+        let ratio = ratio_to_the_oracle(field, Budget::default());
+        assert!(
+            ratio <= WITHIN_ORACLE,
+            "{}: L2 / oracle {ratio}",
+            field.name
+        );
+    }
+}
+
+#[test]
+fn the_noisy_sharp_lobes_gap_to_the_oracle_closes_with_samples() {
+    // Four times the default budget (5 iterations of 1M·2^k samples), otherwise as above.
+    let field = &TestField::all()[3];
+    assert!(field.workload.lobe_noise > 1.0 && field.name.starts_with("sharp"));
+    let budget = Budget {
+        first: 4 * Budget::default().first,
+        ..Budget::default()
+    };
+    let ratio = ratio_to_the_oracle(field, budget);
+    assert!(
+        ratio <= WITHIN_ORACLE,
+        "{}: L2 / oracle {ratio}",
+        field.name
+    );
 }
 
 #[test]
