@@ -5,7 +5,7 @@
 //! cargo run --release -p sdguide-render -- [--scene door] [--time 40] [--spp N] [--rule both]
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
-//!     [--filter box|deferred|nearest]
+//!     [--filter box|deferred|nearest] [--spatial-threshold N]
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
@@ -23,7 +23,7 @@ use std::time::Duration;
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--time SECONDS (0: none)] \
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
-[--filter box|deferred|nearest] [--reference]";
+[--filter box|deferred|nearest] [--spatial-threshold N] [--reference]";
 
 struct Args {
     scene: String,
@@ -39,6 +39,7 @@ struct Args {
     guide_probability: Option<f32>,
     refinement: Refinement,
     directional_filter: DirectionalFilter,
+    spatial_threshold: f32,
 }
 
 fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
@@ -62,6 +63,7 @@ fn parse() -> Result<Args, String> {
         guide_probability: None,
         refinement: Refinement::default(),
         directional_filter: DirectionalFilter::default(),
+        spatial_threshold: GuidingConfig::default().spatial_threshold,
     };
     let mut argv = std::env::args().skip(1);
     while let Some(flag) = argv.next() {
@@ -101,6 +103,7 @@ fn parse() -> Result<Args, String> {
                     _ => return Err(format!("bad value for --refinement: {value}")),
                 }
             }
+            "--spatial-threshold" => a.spatial_threshold = number(&flag, &value)?,
             "--filter" => {
                 a.directional_filter = match value.as_str() {
                     "box" => DirectionalFilter::Box,
@@ -167,6 +170,7 @@ fn run_method(
             config: &GuidingConfig {
                 refinement: args.refinement,
                 directional_filter: args.directional_filter,
+                spatial_threshold: args.spatial_threshold,
                 ..GuidingConfig::default()
             },
             cache,
@@ -209,12 +213,18 @@ fn run() -> Result<(), String> {
     }
 
     if args.make_reference {
+        // Streams of its own, independent of every run compared with it.
+        let args = Args {
+            seed: reference::seed(args.seed),
+            ..args
+        };
         let outcome = run_method(&scene, Method::Guided(LeafRule::L2), &args, None)?;
         let path = reference::store(
             &reference::directory(),
             &scene,
             &outcome.image,
             outcome.spp,
+            args.seed,
             &command,
         )
         .map_err(|e| e.to_string())?;
@@ -229,8 +239,13 @@ fn run() -> Result<(), String> {
         return Ok(());
     }
 
-    let reference = match reference::load(&reference::directory(), &scene, args.width, args.height)
-    {
+    let reference = match reference::load(
+        &reference::directory(),
+        &scene,
+        args.width,
+        args.height,
+        args.seed,
+    ) {
         Ok(found) => Some(found),
         Err(e) => {
             eprintln!("render: {e}; errors will not be reported");
@@ -321,8 +336,11 @@ fn report(
         Some((_, d)) => {
             let _ = writeln!(
                 r,
-                "Reference: {} spp, fingerprint {:016x} (matches the scene).\n",
-                d.spp, d.fingerprint
+                "Reference: {} spp, fingerprint {:016x} (matches the scene), rendered from \
+                 seed {} (streams of its own).\n",
+                d.spp,
+                d.fingerprint,
+                d.seed.unwrap_or_default()
             );
         }
         None => {

@@ -1,9 +1,17 @@
 //! Stored reference images: a linear EXR per scene under `render/reference/`, with a small text
-//! file saying what it shows (scene fingerprint, resolution, samples, the command that made it).
-//! A reference is refused if it does not match the scene it is compared with.
+//! file saying what it shows (scene fingerprint, resolution, samples, seed, the command that made
+//! it). A reference is refused if it does not match the scene it is compared with, or if it was
+//! drawn from the same random streams as the run compared with it.
+//!
+//! A reference renders from a seed of its own, [`seed`], derived from the seed it was asked
+//! for. A run's random streams are a function of its seed (one per pixel and pass), so a
+//! reference rendered with seed 1 would otherwise share every stream of a seed-1 run: a guided
+//! run whose field came out as the reference's would draw the very samples the reference
+//! averaged, and its error against it would come out far too small.
 
 use crate::image::{Image, ImageError};
 use crate::scene::Scene;
+use sdguide::synthetic::Rng;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -30,6 +38,19 @@ impl fmt::Display for ReferenceError {
 
 impl std::error::Error for ReferenceError {}
 
+/// The seed a reference asked for with `seed` renders from: a pseudo-random function of it,
+/// so that the reference's random streams are independent of those of the runs compared with
+/// it (see the module's documentation).
+///
+/// ```
+/// use sdguide_render::reference;
+/// assert_ne!(reference::seed(1), 1);
+/// ```
+pub fn seed(seed: u64) -> u64 {
+    // The bytes of "referenc", to separate these seeds from the runs' own.
+    Rng::new(seed ^ 0x7265_6665_7265_6e63).next_u64()
+}
+
 /// The directory references are stored in.
 pub fn directory() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("reference")
@@ -55,14 +76,18 @@ pub struct Description {
     pub height: usize,
     /// Samples per pixel.
     pub spp: u32,
+    /// The seed it was rendered from ([`seed`] of the one asked for); `None` in a description
+    /// written before references had seeds of their own, which is refused.
+    pub seed: Option<u64>,
     /// The command that rendered it.
     pub command: String,
 }
 
 impl Description {
     fn to_text(&self) -> String {
+        let seed = self.seed.map_or(String::new(), |s| format!("seed {s}\n"));
         format!(
-            "scene {}\nfingerprint {:016x}\nwidth {}\nheight {}\nspp {}\ncommand {}\n",
+            "scene {}\nfingerprint {:016x}\nwidth {}\nheight {}\nspp {}\n{seed}command {}\n",
             self.scene, self.fingerprint, self.width, self.height, self.spp, self.command
         )
     }
@@ -79,17 +104,22 @@ impl Description {
             width: field("width")?.parse().ok()?,
             height: field("height")?.parse().ok()?,
             spp: field("spp")?.parse().ok()?,
+            seed: match field("seed") {
+                Some(s) => Some(s.parse().ok()?),
+                None => None,
+            },
             command: field("command").unwrap_or_default(),
         })
     }
 }
 
-/// Stores `image` as the reference of `scene` in `dir`.
+/// Stores `image`, rendered from `seed` (see [`seed`]), as the reference of `scene` in `dir`.
 pub fn store(
     dir: &Path,
     scene: &Scene,
     image: &Image,
     spp: u32,
+    seed: u64,
     command: &str,
 ) -> Result<PathBuf, ImageError> {
     std::fs::create_dir_all(dir)?;
@@ -101,18 +131,21 @@ pub fn store(
         width: image.width,
         height: image.height,
         spp,
+        seed: Some(seed),
         command: command.to_string(),
     };
     std::fs::write(&txt, description.to_text())?;
     Ok(exr)
 }
 
-/// Loads the reference of `scene` from `dir` and checks it shows this scene at this resolution.
+/// Loads the reference of `scene` from `dir` and checks it shows this scene at this resolution,
+/// from other random streams than those of a run seeded with `run_seed`.
 pub fn load(
     dir: &Path,
     scene: &Scene,
     width: usize,
     height: usize,
+    run_seed: u64,
 ) -> Result<(Image, Description), ReferenceError> {
     let (exr, txt) = paths(dir, scene);
     if !exr.exists() {
@@ -137,6 +170,22 @@ pub fn load(
             "is {}×{}, the render {width}×{height}",
             description.width, description.height
         )));
+    }
+    match description.seed {
+        None => {
+            return Err(ReferenceError::Mismatch(format!(
+                "of `{}` was rendered before references had seeds of their own, and shares the \
+                 random streams of the runs with its seed; render it again with: {}",
+                scene.name, description.command
+            )));
+        }
+        Some(s) if s == run_seed => {
+            return Err(ReferenceError::Mismatch(format!(
+                "was rendered from seed {s}, the run's: its samples are the run's own, so the \
+                 run's error against it means nothing; run with another --seed"
+            )));
+        }
+        Some(_) => {}
     }
     let image = Image::read_exr(&exr)
         .map_err(|e| ReferenceError::Unreadable(exr.clone(), e.to_string()))?;

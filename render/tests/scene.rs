@@ -180,13 +180,30 @@ fn light_sampling_covers_the_emitters_solid_angle() {
 }
 
 /// The references in the repository are those of the scenes as built now (a change to a scene
-/// must come with a new reference).
+/// must come with a new reference), rendered from streams of their own.
 #[test]
 fn the_stored_references_match_their_scenes() {
     for scene in [door(), glossy_box(), uplight()] {
-        let loaded = reference::load(&reference::directory(), &scene, 320, 240);
+        // Seed 1 is the demo's default.
+        let loaded = reference::load(&reference::directory(), &scene, 320, 240, 1);
         assert!(loaded.is_ok(), "{}: {:?}", scene.name, loaded.err());
+        let seed = loaded.unwrap().1.seed;
+        assert_eq!(seed, Some(reference::seed(1)), "{}", scene.name);
     }
+}
+
+#[test]
+fn references_draw_from_streams_of_their_own() {
+    // A reference asked for with seed s renders from `reference::seed(s)`, which is no small
+    // seed a run would be given, and no other reference's.
+    let seeds: Vec<u64> = (0..1000).map(reference::seed).collect();
+    for (s, &r) in seeds.iter().enumerate() {
+        assert!(r >= 1 << 32, "seed {s} → {r}");
+    }
+    let mut sorted = seeds.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), seeds.len());
 }
 
 #[test]
@@ -195,25 +212,40 @@ fn references_are_checked_against_the_scene() {
     let scene = furnace(0.5, 1.0);
     let mut image = Image::new(8, 6);
     image.pixels[5] = Vec3::new(1.0, 2.0, 3.0);
-    reference::store(&dir, &scene, &image, 16, "render --reference").unwrap();
-    let (loaded, description) = reference::load(&dir, &scene, 8, 6).unwrap();
+    let seed = reference::seed(1);
+    reference::store(&dir, &scene, &image, 16, seed, "render --reference").unwrap();
+    let (loaded, description) = reference::load(&dir, &scene, 8, 6, 1).unwrap();
     assert_eq!(loaded, image);
-    assert_eq!(description.spp, 16);
+    assert_eq!((description.spp, description.seed), (16, Some(seed)));
     assert_eq!(loaded.rel_mse(&image), 0.0);
     // Another resolution, another scene description, no reference at all.
     assert!(matches!(
-        reference::load(&dir, &scene, 16, 12),
+        reference::load(&dir, &scene, 16, 12, 1),
         Err(ReferenceError::Mismatch(_))
     ));
     let mut other = furnace(0.6, 1.0);
     other.name = scene.name.clone();
     assert!(matches!(
-        reference::load(&dir, &other, 8, 6),
+        reference::load(&dir, &other, 8, 6, 1),
         Err(ReferenceError::Mismatch(_))
     ));
     assert!(matches!(
-        reference::load(&dir, &door(), 8, 6),
+        reference::load(&dir, &door(), 8, 6, 1),
         Err(ReferenceError::Missing(_))
+    ));
+    // A run with the reference's own seed would be measured against its own samples.
+    assert!(matches!(
+        reference::load(&dir, &scene, 8, 6, seed),
+        Err(ReferenceError::Mismatch(_))
+    ));
+    // A description without a seed is from before references drew streams of their own.
+    let txt = dir.join(format!("{}.txt", scene.name));
+    let text = std::fs::read_to_string(&txt).unwrap();
+    assert!(text.contains(&format!("seed {seed}\n")));
+    std::fs::write(&txt, text.replace(&format!("seed {seed}\n"), "")).unwrap();
+    assert!(matches!(
+        reference::load(&dir, &scene, 8, 6, 1),
+        Err(ReferenceError::Mismatch(_))
     ));
     std::fs::remove_dir_all(&dir).unwrap();
 }
