@@ -65,6 +65,33 @@ impl Image {
             / (3 * self.pixels.len()) as f64
     }
 
+    /// How far this image's mean lies from `reference`'s, in standard errors: the mean over
+    /// pixels of the difference of their channel means, divided by its standard error. Pixels
+    /// are independent estimates (each has random streams of its own, and the reference has
+    /// others), so the standard error is the differences' sample deviation over √N. An unbiased
+    /// render gives a standard normal number; |z| > 3 flags a bias.
+    pub fn mean_deviation(&self, reference: &Image) -> f64 {
+        assert_eq!(
+            (self.width, self.height),
+            (reference.width, reference.height)
+        );
+        let d: Vec<f64> = self
+            .pixels
+            .iter()
+            .zip(&reference.pixels)
+            .map(|(i, r)| (*i - *r).element_sum() as f64 / 3.0)
+            .collect();
+        let n = d.len() as f64;
+        let mean = d.iter().sum::<f64>() / n;
+        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+        let se = (var / n).sqrt();
+        match (se > 0.0, mean == 0.0) {
+            (true, _) => mean / se,
+            (false, true) => 0.0,
+            (false, false) => mean.signum() * f64::INFINITY,
+        }
+    }
+
     /// The relative mean squared error against `reference`:
     /// `mean over pixels and channels of (I − R)² / (R² + 0.01)`.
     pub fn rel_mse(&self, reference: &Image) -> f64 {

@@ -14,10 +14,15 @@
 //! 4. once the path is finished, record every vertex: position, direction, the luminance of that
 //!    incident radiance, the mixture pdf, and the mixture terms the guide probability learns
 //!    from. Between training passes the caller refines the field (no thread may render then).
+//!
+//! With the `openpgl` feature, the same four points serve Intel Open PGL ([`Guide::OpenPgl`]):
+//! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
+//! place, so that the two libraries are compared in one renderer.
 
 use crate::geometry::{Frame, Ray};
 use crate::material::{Material, luminance};
 use crate::scene::Scene;
+use glam::Vec2;
 use glam::Vec3;
 use sdguide::synthetic::Rng;
 use sdguide::{DirectionalDistribution, GuidingField, Sample};
@@ -27,11 +32,56 @@ pub const MAX_DEPTH: usize = 10;
 /// Russian roulette starts after this many scattering events.
 const ROULETTE_DEPTH: usize = 3;
 
+/// The guiding field a render samples: sdguide's, or the peer's.
+#[derive(Clone, Copy)]
+pub enum Guide<'a> {
+    /// An sdguide field.
+    Sdguide(&'a GuidingField),
+    /// An Intel Open PGL field.
+    #[cfg(feature = "openpgl")]
+    OpenPgl(&'a crate::openpgl::Guide),
+}
+
+/// The probability of sampling Open PGL's guide instead of the BSDF: ½, Cycles' default
+/// surface guiding probability (the peer learns none).
+#[cfg(feature = "openpgl")]
+pub const PEER_GUIDE_PROBABILITY: f32 = 0.5;
+
+impl<'a> From<&'a GuidingField> for Guide<'a> {
+    fn from(field: &'a GuidingField) -> Self {
+        Guide::Sdguide(field)
+    }
+}
+
+impl<'a> Guide<'a> {
+    /// Whether a vertex's lookup draws a random number (Open PGL's stochastic spatial lookup).
+    fn draws_lookup(self) -> bool {
+        match self {
+            Guide::Sdguide(_) => false,
+            #[cfg(feature = "openpgl")]
+            Guide::OpenPgl(_) => true,
+        }
+    }
+
+    /// The guide's distribution at a vertex; `None` where it has none (the peer's before its
+    /// first update).
+    #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))]
+    fn at(self, position: Vec3, normal: Vec3, lookup: f32) -> Option<GuideView<'a>> {
+        match self {
+            Guide::Sdguide(field) => Some(GuideView::Sdguide(field.distribution(position))),
+            #[cfg(feature = "openpgl")]
+            Guide::OpenPgl(field) => field
+                .distribution(position, normal, lookup)
+                .map(GuideView::OpenPgl),
+        }
+    }
+}
+
 /// How a render uses a guiding field.
 #[derive(Clone, Copy)]
 pub struct Guiding<'a> {
     /// The field to sample (and to record into when `record` is set).
-    pub field: &'a GuidingField,
+    pub field: Guide<'a>,
     /// Whether finished paths are recorded into the field (training passes).
     pub record: bool,
     /// Probability of sampling the guide instead of the BSDF; `None` uses the field's learned
@@ -59,20 +109,53 @@ pub struct MixturePdf {
     pub guide: f32,
 }
 
+/// A guide's directional distribution at one vertex.
+enum GuideView<'a> {
+    Sdguide(DirectionalDistribution<'a>),
+    #[cfg(feature = "openpgl")]
+    OpenPgl(crate::openpgl::Distribution),
+}
+
+impl GuideView<'_> {
+    fn sample(&self, u: Vec2) -> Vec3 {
+        match self {
+            GuideView::Sdguide(d) => d.sample(u).0,
+            #[cfg(feature = "openpgl")]
+            GuideView::OpenPgl(d) => d.sample(u),
+        }
+    }
+
+    fn pdf(&self, direction: Vec3) -> f32 {
+        match self {
+            GuideView::Sdguide(d) => d.pdf(direction),
+            #[cfg(feature = "openpgl")]
+            GuideView::OpenPgl(d) => d.pdf(direction),
+        }
+    }
+
+    fn guide_probability(&self) -> f32 {
+        match self {
+            GuideView::Sdguide(d) => d.guide_probability(),
+            #[cfg(feature = "openpgl")]
+            GuideView::OpenPgl(_) => PEER_GUIDE_PROBABILITY,
+        }
+    }
+}
+
 /// The directional sampling strategy at one vertex: the BSDF's, mixed with the guide's when
 /// there is a guiding field.
 pub struct VertexSampler<'a> {
     frame: Frame,
     wo: Vec3,
     material: &'a Material,
-    guide: Option<DirectionalDistribution<'a>>,
+    guide: Option<GuideView<'a>>,
     /// Probability of drawing from the guide.
     a: f32,
 }
 
 impl<'a> VertexSampler<'a> {
     /// The strategy at `position`, with shading normal `normal` (facing the viewer), outgoing
-    /// world direction `wo`, the surface's material, and the guiding field if any.
+    /// world direction `wo`, the surface's material, and the sdguide field if any.
     pub fn new(
         position: Vec3,
         normal: Vec3,
@@ -80,9 +163,22 @@ impl<'a> VertexSampler<'a> {
         material: &'a Material,
         field: Option<&'a GuidingField>,
     ) -> Self {
+        Self::with_guide(position, normal, wo, material, field.map(Guide::from), 0.0)
+    }
+
+    /// The strategy with any guide; `lookup` is a uniform random number for a guide whose
+    /// spatial lookup is stochastic (Open PGL's), unused by sdguide's.
+    pub fn with_guide(
+        position: Vec3,
+        normal: Vec3,
+        wo: Vec3,
+        material: &'a Material,
+        guide: Option<Guide<'a>>,
+        lookup: f32,
+    ) -> Self {
         let frame = Frame::new(normal);
-        // GUIDING (1): one lookup per vertex; the distribution is a lock-free view.
-        let guide = field.map(|f| f.distribution(position));
+        // GUIDING (1): one lookup per vertex; sdguide's distribution is a lock-free view.
+        let guide = guide.and_then(|g| g.at(position, normal, lookup));
         let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
         VertexSampler {
             frame,
@@ -123,7 +219,7 @@ impl<'a> VertexSampler<'a> {
         let lobe = rng.next_f32();
         let u = rng.next_vec2();
         let direction = match &self.guide {
-            Some(guide) if choice < self.a => guide.sample(u).0,
+            Some(guide) if choice < self.a => guide.sample(u),
             _ => {
                 let s = self.material.sample(self.wo, lobe, u)?;
                 self.frame.to_world(s.wi)
@@ -143,6 +239,8 @@ struct GuideVertex {
     bsdf_pdf: f32,
     guide_pdf: f32,
     bsdf_cos: Vec3,
+    /// Distance to the next vertex along `direction` (infinite until it is found).
+    distance: f32,
     /// Throughput from the radiance arriving at this vertex to the path's current end.
     throughput: Vec3,
     /// Radiance that arrived along `direction` so far.
@@ -183,12 +281,38 @@ impl PathLog {
         self.len += 1;
     }
 
+    /// The last vertex's ray hit something `distance` away.
+    fn reached(&mut self, distance: f32) {
+        if let Some(v) = self.vertices[..self.len].last_mut() {
+            v.distance = distance;
+        }
+    }
+
     /// GUIDING (4): records every vertex, once the path is finished.
-    fn record(&self, field: &GuidingField) {
-        for v in &self.vertices[..self.len] {
-            let sample = Sample::new(v.position, v.direction, luminance(v.radiance), v.pdf)
-                .with_mixture(luminance(v.radiance * v.bsdf_cos), v.bsdf_pdf, v.guide_pdf);
-            field.record(&sample);
+    fn record(&self, guide: Guide<'_>) {
+        let vertices = &self.vertices[..self.len];
+        match guide {
+            Guide::Sdguide(field) => {
+                for v in vertices {
+                    let sample = Sample::new(v.position, v.direction, luminance(v.radiance), v.pdf)
+                        .with_mixture(luminance(v.radiance * v.bsdf_cos), v.bsdf_pdf, v.guide_pdf);
+                    field.record(&sample);
+                }
+            }
+            #[cfg(feature = "openpgl")]
+            Guide::OpenPgl(field) => {
+                let mut records = [crate::openpgl::Record::default(); MAX_DEPTH];
+                for (r, v) in records.iter_mut().zip(vertices) {
+                    *r = crate::openpgl::Record {
+                        position: v.position,
+                        direction: v.direction,
+                        radiance: luminance(v.radiance),
+                        pdf: v.pdf,
+                        distance: v.distance,
+                    };
+                }
+                field.record(&records[..vertices.len()]);
+            }
         }
     }
 }
@@ -201,7 +325,7 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 
 /// The radiance arriving along `ray` (one path sample), guided when `guiding` is given.
 pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: &mut Rng) -> Vec3 {
-    let field = guiding.map(|g| g.field);
+    let guide = guiding.map(|g| g.field);
     let mut log = PathLog::new();
     let mut l = Vec3::ZERO;
     let mut beta = Vec3::ONE;
@@ -211,6 +335,7 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
         let Some(hit) = scene.intersect(&ray) else {
             break;
         };
+        log.reached(hit.t);
         let wo = -ray.direction;
         let emitted = scene.emitted(&hit, wo);
         if emitted != Vec3::ZERO {
@@ -230,7 +355,12 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
         } else {
             -hit.normal
         };
-        let mut sampler = VertexSampler::new(hit.position, normal, wo, material, field);
+        let lookup = match guide {
+            Some(g) if g.draws_lookup() => rng.next_f32(),
+            _ => 0.0,
+        };
+        let mut sampler =
+            VertexSampler::with_guide(hit.position, normal, wo, material, guide, lookup);
         if let Some(a) = guiding.and_then(|g| g.guide_probability) {
             sampler = sampler.with_guide_probability(a);
         }
@@ -272,6 +402,7 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
                 bsdf_pdf: s.pdf.bsdf,
                 guide_pdf: s.pdf.guide,
                 bsdf_cos: f,
+                distance: f32::INFINITY,
                 throughput: Vec3::ONE,
                 radiance: Vec3::ZERO,
             });

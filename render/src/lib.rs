@@ -8,13 +8,16 @@
 //! `render` binary runs the comparison (see `docs/render.md`).
 
 #![deny(missing_docs)]
-#![forbid(unsafe_code)]
+// Safe code only, but for the FFI to the peer library (the `openpgl` feature).
+#![deny(unsafe_code)]
 
 pub mod bvh;
 pub mod geometry;
 pub mod image;
 pub mod integrator;
 pub mod material;
+#[cfg(feature = "openpgl")]
+pub mod openpgl;
 pub mod reference;
 pub mod render;
 pub mod scene;

@@ -1,11 +1,12 @@
-//! `render`: renders a scene with unguided path tracing and with guiding (l1 and l2 rules) in the
-//! same wall-clock budget each, and reports the error of each against a stored reference.
+//! `render`: renders a scene with unguided path tracing and with guiding (l1 and l2 rules, and
+//! Intel Open PGL when built with the `openpgl` feature) in the same wall-clock budget each, and
+//! reports the error of each against a stored reference.
 //!
 //! ```text
 //! cargo run --release -p sdguide-render -- [--scene door] [--time 40] [--spp N] [--rule both]
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
-//!     [--filter box|deferred|nearest] [--spatial-threshold N]
+//!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
@@ -23,7 +24,8 @@ use std::time::Duration;
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--time SECONDS (0: none)] \
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
-[--filter box|deferred|nearest] [--spatial-threshold N] [--reference]";
+[--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
+[--reference]";
 
 struct Args {
     scene: String,
@@ -40,6 +42,8 @@ struct Args {
     refinement: Refinement,
     directional_filter: DirectionalFilter,
     spatial_threshold: f32,
+    /// The Open PGL methods to run: with the cosine product or not.
+    peers: Vec<bool>,
 }
 
 fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
@@ -64,6 +68,11 @@ fn parse() -> Result<Args, String> {
         refinement: Refinement::default(),
         directional_filter: DirectionalFilter::default(),
         spatial_threshold: GuidingConfig::default().spatial_threshold,
+        peers: if cfg!(feature = "openpgl") {
+            vec![false, true]
+        } else {
+            Vec::new()
+        },
     };
     let mut argv = std::env::args().skip(1);
     while let Some(flag) = argv.next() {
@@ -110,6 +119,18 @@ fn parse() -> Result<Args, String> {
                     "deferred" => DirectionalFilter::DeferredBox,
                     "nearest" => DirectionalFilter::Nearest,
                     _ => return Err(format!("bad value for --filter: {value}")),
+                }
+            }
+            "--peer" => {
+                a.peers = match value.as_str() {
+                    "none" => Vec::new(),
+                    "plain" => vec![false],
+                    "cos" => vec![true],
+                    "both" => vec![false, true],
+                    _ => return Err(format!("bad value for --peer: {value}")),
+                };
+                if !a.peers.is_empty() && !cfg!(feature = "openpgl") {
+                    return Err("--peer needs the demo built with `--features openpgl`".into());
                 }
             }
             "--guide-probability" => {
@@ -177,8 +198,7 @@ fn run_method(
             guide_probability: args.guide_probability,
         },
         &progress,
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     bar.finish_and_clear();
     Ok(outcome)
 }
@@ -264,6 +284,12 @@ fn run() -> Result<(), String> {
 
     let mut methods = vec![Method::Unguided];
     methods.extend(args.rules.iter().map(|&r| Method::Guided(r)));
+    #[cfg(feature = "openpgl")]
+    methods.extend(
+        args.peers
+            .iter()
+            .map(|&cosine_product| Method::OpenPgl { cosine_product }),
+    );
     let mut outcomes = Vec::new();
     for &method in &methods {
         let reuse = match (method, &cache) {
@@ -303,6 +329,19 @@ fn run() -> Result<(), String> {
     }
     Ok(())
 }
+
+/// What the report says of the peer's wiring.
+#[cfg(feature = "openpgl")]
+const PEER_SETTINGS: &str = concat!(
+    "Peer: Intel Open PGL ",
+    env!("OPENPGL_VERSION"),
+    ", its default field (a kd-tree of parallax-aware VMMs, at most 32000 samples per leaf, \
+     deterministic), the surface sampling distribution at every vertex (`openpgl-cos`: with its \
+     cosine product), guide probability ½ unless fixed, the same mixture, MIS, recorded \
+     radiance and training schedule as sdguide's methods."
+);
+#[cfg(not(feature = "openpgl"))]
+const PEER_SETTINGS: &str = "";
 
 fn report(
     scene: &Scene,
@@ -350,14 +389,20 @@ fn report(
             );
         }
     }
+    if !args.peers.is_empty() {
+        let _ = writeln!(r, "{}\n", PEER_SETTINGS);
+    }
     let _ = writeln!(
         r,
-        "| method | spp | training | total time | relMSE | relMSE vs unguided |\n|---|---:|---|---:|---:|---:|"
+        "| method | spp | training | total time | relMSE | relMSE vs unguided | per sample vs \
+         unguided | time per spp vs unguided | mean vs reference |\n\
+         |---|---:|---|---:|---:|---:|---:|---:|---:|"
     );
     let errors: Vec<Option<f64>> = outcomes
         .iter()
         .map(|(o, _)| reference.map(|(img, _)| o.image.rel_mse(img)))
         .collect();
+    let base = &outcomes[0].0;
     for ((o, reused), error) in outcomes.iter().zip(&errors) {
         let training = match (o.method, reused) {
             (Method::Unguided, _) => "—".to_string(),
@@ -368,18 +413,34 @@ fn report(
                 o.training_spp
             ),
         };
-        let (error, ratio) = match (error, errors[0]) {
-            (Some(e), Some(base)) => (format!("{e:.5}"), format!("{:.3}×", e / base)),
-            _ => ("—".into(), "—".into()),
+        // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
+        let (error, ratio, per_sample) = match (error, errors[0]) {
+            (Some(e), Some(e0)) => (
+                format!("{e:.5}"),
+                format!("{:.3}×", e / e0),
+                format!("{:.3}×", (e * o.spp as f64) / (e0 * base.spp.max(1) as f64)),
+            ),
+            _ => ("—".into(), "—".into(), "—".into()),
         };
+        let cost = o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12);
+        let deviation = reference.map_or("—".to_string(), |(img, _)| {
+            format!("{:+.1}σ", o.image.mean_deviation(img))
+        });
         let _ = writeln!(
             r,
-            "| {} | {} | {training} | {:.1} s | {error} | {ratio} |",
+            "| {} | {} | {training} | {:.1} s | {error} | {ratio} | {per_sample} | {cost:.2}× | \
+             {deviation} |",
             o.method.name(),
             o.spp,
             o.total_time.as_secs_f32(),
         );
     }
+    let _ = writeln!(
+        r,
+        "\nPer sample: relMSE × spp over unguided's. Time per spp: the final render's, training \
+         excluded. Mean vs reference: the image mean's distance from the reference's in \
+         standard errors of the pixel differences (|z| ≤ 3 for an unbiased render)."
+    );
     let _ = writeln!(
         r,
         "\nImages: `{0}-<method>.png` (tone-mapped) and `.exr` (linear); `{0}-compare.png`: \

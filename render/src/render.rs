@@ -3,7 +3,7 @@
 //! time counts against the budget).
 
 use crate::image::Image;
-use crate::integrator::{Guiding, radiance};
+use crate::integrator::{Guide, Guiding, radiance};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -72,13 +72,42 @@ pub fn render_pass(
     }
 }
 
+/// A guiding field the demo can train: sdguide's, or the peer's.
+pub trait Trainable {
+    /// The field as the integrator samples and records it.
+    fn guide(&self) -> Guide<'_>;
+    /// Rebuilds the sampling distributions from what was recorded (between passes).
+    fn refine(&mut self);
+}
+
+impl Trainable for GuidingField {
+    fn guide(&self) -> Guide<'_> {
+        Guide::Sdguide(self)
+    }
+
+    fn refine(&mut self) {
+        GuidingField::refine(self);
+    }
+}
+
+#[cfg(feature = "openpgl")]
+impl Trainable for crate::openpgl::Guide {
+    fn guide(&self) -> Guide<'_> {
+        Guide::OpenPgl(self)
+    }
+
+    fn refine(&mut self) {
+        self.update();
+    }
+}
+
 /// One training pass: renders `spp` samples per pixel at `size`, recording every path into
 /// `field` (the image is discarded), then refines the field. Training passes draw from random
 /// streams of their own, numbered by `iteration`; `guide_probability` fixes the guide's share
-/// (`None`: the field's learned one).
+/// (`None`: the field's learned one, or the peer's fixed one).
 pub fn training_pass(
     scene: &Scene,
-    field: &mut GuidingField,
+    field: &mut impl Trainable,
     (width, height): (usize, usize),
     spp: u32,
     seed: u64,
@@ -86,7 +115,7 @@ pub fn training_pass(
     guide_probability: Option<f32>,
 ) {
     let guiding = Guiding {
-        field,
+        field: field.guide(),
         record: true,
         guide_probability,
     };
@@ -109,6 +138,12 @@ pub enum Method {
     Unguided,
     /// Path guiding with the given leaf rule.
     Guided(LeafRule),
+    /// Path guiding with Intel Open PGL's field, with or without its cosine product.
+    #[cfg(feature = "openpgl")]
+    OpenPgl {
+        /// Whether each vertex's distribution is multiplied by the clamped cosine.
+        cosine_product: bool,
+    },
 }
 
 impl Method {
@@ -118,6 +153,14 @@ impl Method {
             Method::Unguided => "unguided",
             Method::Guided(LeafRule::L1) => "guided-l1",
             Method::Guided(LeafRule::L2) => "guided-l2",
+            #[cfg(feature = "openpgl")]
+            Method::OpenPgl {
+                cosine_product: false,
+            } => "openpgl",
+            #[cfg(feature = "openpgl")]
+            Method::OpenPgl {
+                cosine_product: true,
+            } => "openpgl-cos",
         }
     }
 }
@@ -160,8 +203,15 @@ pub struct Outcome {
     pub training_time: Duration,
     /// Total wall-clock time.
     pub total_time: Duration,
-    /// The trained field, for guided methods.
+    /// The trained field, for sdguide's guided methods.
     pub field: Option<GuidingField>,
+}
+
+impl Outcome {
+    /// Wall-clock time of the final render per sample per pixel (training excluded).
+    pub fn time_per_spp(&self) -> Duration {
+        (self.total_time.saturating_sub(self.training_time)) / self.spp.max(1)
+    }
 }
 
 /// Called after every pass with (phase, fraction of the budget used, samples per pixel so far).
@@ -197,69 +247,63 @@ pub fn render(
     seed: u64,
     guiding: Training<'_>,
     progress: Progress<'_>,
-) -> Result<Outcome, sdguide::ConfigError> {
+) -> Result<Outcome, String> {
     let start = Instant::now();
     let fraction = |spp: u32| match (budget.time, budget.spp) {
         (Some(t), _) => start.elapsed().as_secs_f32() / t.as_secs_f32(),
         (None, Some(n)) => spp as f32 / n as f32,
         (None, None) => 1.0,
     };
+    let schedule = Schedule {
+        start,
+        budget,
+        size: (width, height),
+        seed,
+        guide_probability: guiding.guide_probability,
+    };
+    let training_progress = |pass: u32, spp: u32| {
+        progress(&format!("training, pass {pass}"), fraction(0), spp);
+    };
     let mut field = None;
-    let mut training_spp = 0;
-    let mut training_time = Duration::ZERO;
-    if let Method::Guided(rule) = method {
-        if let Some(cached) = guiding.cache {
-            field = Some(cached);
-        } else {
-            let config = GuidingConfig {
-                rule,
-                ..guiding.config.clone()
-            };
-            let mut trained = GuidingField::new(field_bounds(scene), config)?;
-            let mut last = Duration::ZERO;
-            // With a time budget, passes continue while the next one — twice the samples, so
-            // about twice the time — still fits in the training share (at most 2¹⁶ − 1 spp).
-            let passes = if budget.time.is_some() {
-                16
-            } else {
-                budget.training_iterations
-            };
-            for iteration in 0..passes {
-                if let Some(t) = budget.time
-                    && start.elapsed() + 2 * last > t.mul_f32(budget.training_share)
-                {
-                    break;
+    #[cfg(feature = "openpgl")]
+    let mut peer = None;
+    let mut trained = (0, Duration::ZERO);
+    match method {
+        Method::Unguided => {}
+        Method::Guided(rule) => {
+            field = Some(match guiding.cache {
+                Some(cached) => cached,
+                None => {
+                    let config = GuidingConfig {
+                        rule,
+                        ..guiding.config.clone()
+                    };
+                    let mut new = GuidingField::new(field_bounds(scene), config)
+                        .map_err(|e| e.to_string())?;
+                    trained = schedule.train(scene, &mut new, &training_progress);
+                    new
                 }
-                let began = Instant::now();
-                let spp = 1 << iteration;
-                training_pass(
-                    scene,
-                    &mut trained,
-                    (width, height),
-                    spp,
-                    seed,
-                    iteration,
-                    guiding.guide_probability,
-                );
-                training_spp += spp;
-                last = began.elapsed();
-                progress(
-                    &format!("training, pass {}", iteration + 1),
-                    fraction(0),
-                    training_spp,
-                );
-            }
-            training_time = start.elapsed();
-            field = Some(trained);
+            });
+        }
+        #[cfg(feature = "openpgl")]
+        Method::OpenPgl { cosine_product } => {
+            let threads = rayon::current_num_threads();
+            let mut new = crate::openpgl::Guide::new(field_bounds(scene), cosine_product, threads)?;
+            trained = schedule.train(scene, &mut new, &training_progress);
+            peer = Some(new);
         }
     }
-    let mut sum = Image::new(width, height);
-    let mut spp = 0u32;
-    let guiding = field.as_ref().map(|f| Guiding {
-        field: f,
+    let (training_spp, training_time) = trained;
+    let guide = field.as_ref().map(Guide::Sdguide);
+    #[cfg(feature = "openpgl")]
+    let guide = guide.or(peer.as_ref().map(Guide::OpenPgl));
+    let guiding = guide.map(|field| Guiding {
+        field,
         record: false,
         guide_probability: guiding.guide_probability,
     });
+    let mut sum = Image::new(width, height);
+    let mut spp = 0u32;
     loop {
         let done = match (budget.time, budget.spp) {
             (Some(t), cap) => start.elapsed() >= t || cap.is_some_and(|n| spp >= n),
@@ -284,4 +328,54 @@ pub fn render(
         total_time: start.elapsed(),
         field,
     })
+}
+
+/// The training schedule every guided method follows, whichever its field.
+struct Schedule {
+    start: Instant,
+    budget: Budget,
+    size: (usize, usize),
+    seed: u64,
+    guide_probability: Option<f32>,
+}
+
+impl Schedule {
+    /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp and time. With a
+    /// time budget, passes continue while the next one — twice the samples, so about twice the
+    /// time — still fits in the training share (at most 2¹⁶ − 1 spp).
+    fn train(
+        &self,
+        scene: &Scene,
+        field: &mut impl Trainable,
+        progress: &dyn Fn(u32, u32),
+    ) -> (u32, Duration) {
+        let passes = if self.budget.time.is_some() {
+            16
+        } else {
+            self.budget.training_iterations
+        };
+        let (mut spp_total, mut last) = (0, Duration::ZERO);
+        for iteration in 0..passes {
+            if let Some(t) = self.budget.time
+                && self.start.elapsed() + 2 * last > t.mul_f32(self.budget.training_share)
+            {
+                break;
+            }
+            let began = Instant::now();
+            let spp = 1 << iteration;
+            training_pass(
+                scene,
+                field,
+                self.size,
+                spp,
+                self.seed,
+                iteration,
+                self.guide_probability,
+            );
+            spp_total += spp;
+            last = began.elapsed();
+            progress(iteration + 1, spp_total);
+        }
+        (spp_total, self.start.elapsed())
+    }
 }

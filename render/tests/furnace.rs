@@ -6,7 +6,7 @@
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::Guiding;
+use sdguide_render::integrator::{Guide, Guiding};
 use sdguide_render::render::{field_bounds, render_pass, training_pass};
 use sdguide_render::scenes::{furnace, furnace_sized};
 
@@ -28,7 +28,7 @@ fn mean_and_error(image: &Image) -> (f64, f64) {
     (mean, (var / n).sqrt())
 }
 
-fn render_furnace(field: Option<&GuidingField>) -> Image {
+fn render_furnace(field: Option<Guide<'_>>) -> Image {
     let scene = furnace(ALBEDO, EMISSION);
     let mut sum = Image::new(SIZE.0, SIZE.1);
     let guiding = field.map(|field| Guiding {
@@ -96,6 +96,32 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
         let dist = field.distribution(glam::Vec3::new(0.5, -0.9, 0.2));
         assert!(dist.leaves().len() > 1);
         assert!(dist.guide_probability() > 0.0);
-        assert_converges(&render_furnace(Some(&field)), &format!("{rule:?}"));
+        assert_converges(
+            &render_furnace(Some(Guide::Sdguide(&field))),
+            &format!("{rule:?}"),
+        );
+    }
+}
+
+/// The peer's wiring is unbiased too: Open PGL's field, trained on the furnace, with and without
+/// its cosine product.
+#[cfg(feature = "openpgl")]
+#[test]
+fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
+    use sdguide_render::openpgl;
+    let scene = furnace(ALBEDO, EMISSION);
+    for cosine_product in [false, true] {
+        let mut guide = openpgl::Guide::new(field_bounds(&scene), cosine_product, 2).unwrap();
+        for pass in 0..5 {
+            training_pass(&scene, &mut guide, SIZE, 1 << pass, 3, pass, None);
+        }
+        assert_eq!(guide.iteration(), 5);
+        // The field has learned a distribution, so the render below is guided.
+        let at = glam::Vec3::new(0.5, -0.9, 0.2);
+        assert!(guide.distribution(at, glam::Vec3::Y, 0.5).is_some());
+        assert_converges(
+            &render_furnace(Some(Guide::OpenPgl(&guide))),
+            &format!("Open PGL, cosine product {cosine_product}"),
+        );
     }
 }

@@ -96,3 +96,30 @@ fn guided_mixture_pdf_matches_its_draws() {
         check_sampler(&sampler, false, 4_000_000, 9);
     }
 }
+
+/// The same identity for the peer's mixture: Open PGL's distribution (with and without its
+/// cosine product) mixed with the BSDF at probability ½, at the same two points of `door`.
+#[cfg(feature = "openpgl")]
+#[test]
+fn open_pgl_mixture_pdf_matches_its_draws() {
+    use sdguide_render::integrator::Guide;
+    use sdguide_render::openpgl;
+    let scene = door();
+    let floor = Material::glossy(Vec3::splat(0.3), Vec3::splat(0.35), 0.12);
+    let wall = Material::diffuse(Vec3::splat(0.7));
+    for cosine_product in [false, true] {
+        let mut guide = openpgl::Guide::new(field_bounds(&scene), cosine_product, 2).unwrap();
+        for pass in 0..4 {
+            training_pass(&scene, &mut guide, (48, 36), 2 << pass, 11, pass, None);
+        }
+        for (position, normal, material) in [
+            (Vec3::new(3.0, 0.0, 2.5), Vec3::Y, &floor),
+            (Vec3::new(0.0, 1.2, 2.5), Vec3::X, &wall),
+        ] {
+            let wo = (Vec3::new(0.4, 1.5, 0.4) - position).normalize();
+            let guide = Some(Guide::OpenPgl(&guide));
+            let sampler = VertexSampler::with_guide(position, normal, wo, material, guide, 0.37);
+            check_sampler(&sampler, false, 4_000_000, 9);
+        }
+    }
+}

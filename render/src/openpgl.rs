@@ -1,0 +1,535 @@
+//! Intel Open PGL, the production guiding library of Blender Cycles, as a second guiding backend
+//! of the demo: a small safe wrapper over its C API, so that every figure the demo reports for
+//! sdguide has the peer's beside it, measured in the same renderer and the same run.
+//!
+//! Built only with the `openpgl` feature; `build.rs` builds the vendored source and links it.
+//! What is wired and what is not matched is in `docs/render.md`.
+//!
+//! The wrapper owns four kinds of Open PGL objects: the device (its thread pool), the field (a
+//! kd-tree of parallax-aware von Mises–Fisher mixtures), the sample storage the render threads
+//! record into, and the per-vertex sampling distributions. A distribution is a heap object that
+//! Open PGL re-initialises at every vertex; one per render thread is kept in a thread-local pool,
+//! so a vertex costs an `Init`, not an allocation.
+#![allow(unsafe_code)]
+
+use glam::{Vec2, Vec3};
+use sdguide::Aabb;
+use std::cell::RefCell;
+use std::ffi::c_void;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The version of the Open PGL this demo was built against.
+pub const VERSION: &str = env!("OPENPGL_VERSION");
+
+/// The raw C API (`openpgl/openpgl.h`). Its "C" functions take C++ references in a few places;
+/// those are pointers at the ABI level.
+mod ffi {
+    use std::ffi::c_void;
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct Vec3f {
+        pub x: f32,
+        pub y: f32,
+        pub z: f32,
+    }
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct Vec2f {
+        pub x: f32,
+        pub y: f32,
+    }
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Debug)]
+    pub struct Box3f {
+        pub lower: Vec3f,
+        pub upper: Vec3f,
+    }
+
+    /// `PGLSampleData` without the radiance-cache fields (the build leaves them off).
+    #[repr(C)]
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct SampleData {
+        pub position: Vec3f,
+        pub direction: Vec3f,
+        pub weight: f32,
+        pub pdf: f32,
+        pub distance: f32,
+        pub flags: u32,
+    }
+
+    /// `PGLZeroValueSampleData`.
+    #[repr(C)]
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct ZeroValueSampleData {
+        pub position: Vec3f,
+        pub direction: Vec3f,
+        pub volume: bool,
+    }
+
+    /// `PGLFieldArguments`.
+    #[repr(C)]
+    pub struct FieldArguments {
+        pub spatial_structure_type: i32,
+        pub spatial_structure_arguments: *mut c_void,
+        pub directional_distribution_type: i32,
+        pub directional_distribution_arguments: *mut c_void,
+        pub deterministic: bool,
+        pub fit_regions: bool,
+    }
+
+    pub const SPATIAL_STRUCTURE_KDTREE: i32 = 0;
+    pub const DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM: i32 = 0;
+    pub const DEVICE_TYPE_CPU_4: i32 = 0;
+    pub const DEVICE_TYPE_CPU_8: i32 = 1;
+    /// `PGL_TREE_MAX_SAMPLE_PER_LEAF`, the library's default.
+    pub const TREE_MAX_SAMPLE_PER_LEAF: usize = 32000;
+
+    unsafe extern "C" {
+        pub fn pglNewDevice(device_type: i32, num_threads: usize) -> *mut c_void;
+        pub fn pglReleaseDevice(device: *mut c_void);
+        pub fn pglFieldArgumentsSetDefaults(
+            arguments: *mut FieldArguments,
+            spatial_type: i32,
+            directional_type: i32,
+            deterministic: bool,
+            max_samples_per_leaf: usize,
+        );
+        pub fn pglDeviceNewField(device: *mut c_void, arguments: FieldArguments) -> *mut c_void;
+        pub fn pglReleaseField(field: *mut c_void);
+        pub fn pglFieldSetSceneBounds(field: *mut c_void, bounds: Box3f);
+        pub fn pglFieldUpdate(field: *mut c_void, storage: *mut c_void);
+        pub fn pglFieldGetIteration(field: *mut c_void) -> usize;
+        pub fn pglFieldNewSurfaceSamplingDistribution(field: *mut c_void) -> *mut c_void;
+        pub fn pglFieldInitSurfaceSamplingDistribution(
+            field: *mut c_void,
+            distribution: *mut c_void,
+            position: Vec3f,
+            sample1d: *mut f32,
+        ) -> bool;
+        pub fn pglReleaseSurfaceSamplingDistribution(distribution: *mut c_void);
+        pub fn pglSurfaceSamplingDistributionApplyCosineProduct(
+            distribution: *mut c_void,
+            normal: Vec3f,
+        );
+        pub fn pglSurfaceSamplingDistributionSupportsApplyCosineProduct(
+            distribution: *mut c_void,
+        ) -> bool;
+        pub fn pglSurfaceSamplingDistributionSample(
+            distribution: *mut c_void,
+            sample: Vec2f,
+        ) -> Vec3f;
+        pub fn pglSurfaceSamplingDistributionPDF(
+            distribution: *mut c_void,
+            direction: Vec3f,
+        ) -> f32;
+        pub fn pglNewSampleStorage() -> *mut c_void;
+        pub fn pglReleaseSampleStorage(storage: *mut c_void);
+        pub fn pglSampleStorageAddSamples(
+            storage: *mut c_void,
+            samples: *const SampleData,
+            count: usize,
+        );
+        pub fn pglSampleStorageAddZeroValueSamples(
+            storage: *mut c_void,
+            samples: *const ZeroValueSampleData,
+            count: usize,
+        );
+        pub fn pglSampleStorageClear(storage: *mut c_void);
+        pub fn pglSampleStorageGetSizeSurface(storage: *mut c_void) -> usize;
+    }
+}
+
+fn vec3f(v: Vec3) -> ffi::Vec3f {
+    ffi::Vec3f {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
+}
+
+/// One recorded vertex: the radiance that arrived along `direction` at `position`, drawn with
+/// pdf `pdf`, from a source `distance` away (Open PGL's parallax compensation uses it).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Record {
+    /// Where the path scattered.
+    pub position: Vec3,
+    /// The unit direction it scattered into.
+    pub direction: Vec3,
+    /// The luminance of the radiance that arrived along `direction`.
+    pub radiance: f32,
+    /// The pdf `direction` was drawn with (the mixture's).
+    pub pdf: f32,
+    /// Distance to the next vertex along `direction`.
+    pub distance: f32,
+}
+
+/// Distinguishes fields in the thread-local pool of distributions.
+static NEXT_FIELD_ID: AtomicU64 = AtomicU64::new(1);
+
+/// An Open PGL field with its device and sample storage: what the demo trains and renders with.
+pub struct Guide {
+    device: *mut c_void,
+    field: *mut c_void,
+    storage: *mut c_void,
+    id: u64,
+    cosine_product: bool,
+}
+
+// SAFETY: Open PGL's field and sample storage are made for render threads: initialising a
+// sampling distribution from the field and adding samples to the storage (a TBB concurrent
+// vector) are safe from any number of threads at once; the only mutation of the field,
+// `update`, takes `&mut self`, so no thread can read it then. The pointers are owned by `Guide`
+// and released once, in `Drop`.
+unsafe impl Send for Guide {}
+// SAFETY: as above; every `&self` method calls only the thread-safe part of the C API.
+unsafe impl Sync for Guide {}
+
+impl Guide {
+    /// A new field over `bounds`, with Open PGL's default arguments (a kd-tree of
+    /// parallax-aware VMMs, at most 32000 samples per leaf), deterministic so that a seed
+    /// reproduces a render; `threads` is the size of the thread pool its update may use.
+    /// With `cosine_product`, every vertex's distribution is multiplied by the clamped cosine
+    /// around the shading normal (Open PGL's `ApplyCosineProduct`).
+    pub fn new(bounds: Aabb, cosine_product: bool, threads: usize) -> Result<Guide, String> {
+        let device_type = if cfg!(target_arch = "x86_64") && avx2() {
+            ffi::DEVICE_TYPE_CPU_8
+        } else {
+            ffi::DEVICE_TYPE_CPU_4
+        };
+        // SAFETY: plain constructor calls; every returned pointer is checked before use, and
+        // what `pglFieldArgumentsSetDefaults` fills in is handed to the field it configures.
+        unsafe {
+            let device = ffi::pglNewDevice(device_type, threads);
+            if device.is_null() {
+                return Err("Open PGL could not create its device".into());
+            }
+            let mut arguments = ffi::FieldArguments {
+                spatial_structure_type: ffi::SPATIAL_STRUCTURE_KDTREE,
+                spatial_structure_arguments: std::ptr::null_mut(),
+                directional_distribution_type: ffi::DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM,
+                directional_distribution_arguments: std::ptr::null_mut(),
+                deterministic: true,
+                fit_regions: true,
+            };
+            ffi::pglFieldArgumentsSetDefaults(
+                &mut arguments,
+                ffi::SPATIAL_STRUCTURE_KDTREE,
+                ffi::DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM,
+                true,
+                ffi::TREE_MAX_SAMPLE_PER_LEAF,
+            );
+            let field = ffi::pglDeviceNewField(device, arguments);
+            if field.is_null() {
+                ffi::pglReleaseDevice(device);
+                return Err("Open PGL could not create its field".into());
+            }
+            ffi::pglFieldSetSceneBounds(
+                field,
+                ffi::Box3f {
+                    lower: vec3f(bounds.min),
+                    upper: vec3f(bounds.max),
+                },
+            );
+            let storage = ffi::pglNewSampleStorage();
+            if storage.is_null() {
+                ffi::pglReleaseField(field);
+                ffi::pglReleaseDevice(device);
+                return Err("Open PGL could not create its sample storage".into());
+            }
+            Ok(Guide {
+                device,
+                field,
+                storage,
+                id: NEXT_FIELD_ID.fetch_add(1, Ordering::Relaxed),
+                cosine_product,
+            })
+        }
+    }
+
+    /// Whether the distributions carry the cosine product.
+    pub fn cosine_product(&self) -> bool {
+        self.cosine_product
+    }
+
+    /// Training updates so far.
+    pub fn iteration(&self) -> usize {
+        // SAFETY: a read of the field, which `&self` keeps alive and unchanged.
+        unsafe { ffi::pglFieldGetIteration(self.field) }
+    }
+
+    /// Samples waiting for the next update.
+    pub fn pending_samples(&self) -> usize {
+        // SAFETY: a read of the storage, which `&self` keeps alive.
+        unsafe { ffi::pglSampleStorageGetSizeSurface(self.storage) }
+    }
+
+    /// Records the vertices of one finished path; callable from every render thread at once.
+    /// Vertices with zero radiance go in as Open PGL's zero-value samples, non-finite or
+    /// negative values and non-positive pdfs are dropped (Open PGL asserts on them).
+    pub fn record(&self, vertices: &[Record]) {
+        const MAX: usize = crate::integrator::MAX_DEPTH;
+        let mut samples = [ffi::SampleData::default(); MAX];
+        let mut zeros = [ffi::ZeroValueSampleData::default(); MAX];
+        let (mut n, mut z) = (0, 0);
+        for v in vertices.iter().take(MAX) {
+            let valid = v.pdf.is_finite() && v.pdf > 0.0 && v.radiance.is_finite();
+            if !valid || v.radiance < 0.0 || !v.position.is_finite() || !v.direction.is_finite() {
+                continue;
+            }
+            if v.radiance > 0.0 && v.distance.is_finite() && v.distance > 0.0 {
+                samples[n] = ffi::SampleData {
+                    position: vec3f(v.position),
+                    direction: vec3f(v.direction),
+                    weight: v.radiance / v.pdf,
+                    pdf: v.pdf,
+                    distance: v.distance,
+                    flags: 0,
+                };
+                n += 1;
+            } else if v.radiance == 0.0 {
+                zeros[z] = ffi::ZeroValueSampleData {
+                    position: vec3f(v.position),
+                    direction: vec3f(v.direction),
+                    volume: false,
+                };
+                z += 1;
+            }
+        }
+        // SAFETY: the arrays hold `n` and `z` initialised samples of the C layout; the storage
+        // is a concurrent vector that copies them.
+        unsafe {
+            if n > 0 {
+                ffi::pglSampleStorageAddSamples(self.storage, samples.as_ptr(), n);
+            }
+            if z > 0 {
+                ffi::pglSampleStorageAddZeroValueSamples(self.storage, zeros.as_ptr(), z);
+            }
+        }
+    }
+
+    /// Fits the field to the samples recorded since the last update, then clears them (what
+    /// Cycles does between its training passes).
+    pub fn update(&mut self) {
+        // SAFETY: `&mut self`: no thread holds a distribution or records meanwhile.
+        unsafe {
+            ffi::pglFieldUpdate(self.field, self.storage);
+            ffi::pglSampleStorageClear(self.storage);
+        }
+    }
+
+    /// The field's distribution at `position`, for a surface with shading normal `normal`
+    /// (used by the cosine product). `lookup` is the uniform random number Open PGL's
+    /// stochastic spatial lookup draws with. `None` where the field has no distribution yet
+    /// (before the first update): the vertex then samples its BSDF alone.
+    pub fn distribution(&self, position: Vec3, normal: Vec3, lookup: f32) -> Option<Distribution> {
+        let raw = POOL.with(|pool| {
+            let mut pool = pool.borrow_mut();
+            // Distributions of a field that is gone are released when the next one is asked.
+            pool.retain(|d| d.field_id == self.id);
+            pool.pop()
+        });
+        let raw = match raw {
+            Some(raw) => raw,
+            None => {
+                // SAFETY: `&self` keeps the field alive; the result is checked.
+                let ptr = unsafe { ffi::pglFieldNewSurfaceSamplingDistribution(self.field) };
+                if ptr.is_null() {
+                    return None;
+                }
+                RawDistribution {
+                    ptr,
+                    field_id: self.id,
+                }
+            }
+        };
+        let mut sample1d = lookup.clamp(0.0, 1.0 - f32::EPSILON);
+        // SAFETY: the distribution was made by this field (the pool is keyed by field), and
+        // `&self` keeps the field unchanged while it is initialised and used.
+        let ok = unsafe {
+            ffi::pglFieldInitSurfaceSamplingDistribution(
+                self.field,
+                raw.ptr,
+                vec3f(position),
+                &mut sample1d,
+            )
+        };
+        let distribution = Distribution { raw: Some(raw) };
+        if !ok {
+            return None;
+        }
+        if self.cosine_product && normal.is_finite() && normal != Vec3::ZERO {
+            let ptr = distribution.ptr();
+            // SAFETY: an initialised distribution of this thread.
+            unsafe {
+                if ffi::pglSurfaceSamplingDistributionSupportsApplyCosineProduct(ptr) {
+                    ffi::pglSurfaceSamplingDistributionApplyCosineProduct(
+                        ptr,
+                        vec3f(normal.normalize()),
+                    );
+                }
+            }
+        }
+        Some(distribution)
+    }
+}
+
+impl Drop for Guide {
+    fn drop(&mut self) {
+        // SAFETY: the pointers were created in `new` and are released once, field before the
+        // device it belongs to.
+        unsafe {
+            ffi::pglReleaseSampleStorage(self.storage);
+            ffi::pglReleaseField(self.field);
+            ffi::pglReleaseDevice(self.device);
+        }
+    }
+}
+
+fn avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// A sampling distribution object, owned by one thread.
+struct RawDistribution {
+    ptr: *mut c_void,
+    field_id: u64,
+}
+
+impl Drop for RawDistribution {
+    fn drop(&mut self) {
+        // SAFETY: created by `pglFieldNewSurfaceSamplingDistribution`, released once here; it
+        // owns its data and does not reach back into the field.
+        unsafe { ffi::pglReleaseSurfaceSamplingDistribution(self.ptr) }
+    }
+}
+
+thread_local! {
+    /// The render thread's distribution objects, reused from vertex to vertex.
+    static POOL: RefCell<Vec<RawDistribution>> = const { RefCell::new(Vec::new()) };
+}
+
+/// Open PGL's directional distribution at one vertex: what the guide samples there. Returned to
+/// its thread's pool when dropped.
+pub struct Distribution {
+    raw: Option<RawDistribution>,
+}
+
+impl Distribution {
+    fn ptr(&self) -> *mut c_void {
+        self.raw.as_ref().map_or(std::ptr::null_mut(), |r| r.ptr)
+    }
+
+    /// Draws a world-space unit direction from two uniform numbers.
+    pub fn sample(&self, u: Vec2) -> Vec3 {
+        // SAFETY: an initialised distribution, used by the thread that initialised it (the
+        // type is neither `Send` nor `Sync`).
+        let d = unsafe {
+            ffi::pglSurfaceSamplingDistributionSample(self.ptr(), ffi::Vec2f { x: u.x, y: u.y })
+        };
+        Vec3::new(d.x, d.y, d.z)
+    }
+
+    /// The density of `direction` (solid angle), as `sample` draws it.
+    pub fn pdf(&self, direction: Vec3) -> f32 {
+        // SAFETY: as in `sample`.
+        unsafe { ffi::pglSurfaceSamplingDistributionPDF(self.ptr(), vec3f(direction)) }
+    }
+}
+
+impl Drop for Distribution {
+    fn drop(&mut self) {
+        if let Some(raw) = self.raw.take() {
+            // A thread being torn down has no pool left; the object is then released.
+            let _ = POOL.try_with(|pool| pool.borrow_mut().push(raw));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(radiance: f32, pdf: f32, distance: f32) -> Record {
+        Record {
+            position: Vec3::splat(0.5),
+            direction: Vec3::Z,
+            radiance,
+            pdf,
+            distance,
+        }
+    }
+
+    #[test]
+    fn record_keeps_valid_samples_and_drops_what_open_pgl_would_assert_on() {
+        let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let guide = Guide::new(bounds, false, 1).unwrap();
+        guide.record(&[
+            record(1.0, 0.5, 2.0),
+            record(0.0, 0.5, 2.0), // a zero-value sample, kept apart
+            record(f32::NAN, 0.5, 2.0),
+            record(1.0, 0.0, 2.0),
+            record(1.0, -1.0, 2.0),
+            record(-1.0, 0.5, 2.0),
+            record(1.0, 0.5, f32::INFINITY),
+            record(2.0, 0.25, 1.0),
+        ]);
+        assert_eq!(guide.pending_samples(), 2);
+    }
+
+    #[test]
+    fn update_consumes_the_samples_and_gives_distributions_that_integrate_to_one() {
+        let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let mut guide = Guide::new(bounds, false, 1).unwrap();
+        // Before the first update there is nothing to sample.
+        assert!(guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).is_none());
+        let mut records = Vec::new();
+        for i in 0..20_000u32 {
+            // Light from around +z, from points spread over the cube.
+            let t = i as f32 / 20_000.0;
+            let position = Vec3::new(t, (t * 7.0).fract(), (t * 13.0).fract());
+            let phi = t * 97.0;
+            let direction = Vec3::new(0.3 * phi.cos(), 0.3 * phi.sin(), 1.0).normalize();
+            records.push(Record {
+                position,
+                direction,
+                radiance: 1.0,
+                pdf: 1.0,
+                distance: 1.0,
+            });
+        }
+        for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+            guide.record(chunk);
+        }
+        assert_eq!(guide.pending_samples(), records.len());
+        guide.update();
+        assert_eq!(guide.pending_samples(), 0);
+        assert_eq!(guide.iteration(), 1);
+        let d = guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).unwrap();
+        // ∫ pdf dω over a 256 × 512 equal-area grid (z uniform, φ uniform): the mixture of von
+        // Mises–Fisher lobes integrates to one, up to the grid's error at its sharpest lobe.
+        let (nz, nphi) = (256, 512);
+        let mut integral = 0.0f64;
+        for i in 0..nz {
+            for j in 0..nphi {
+                let z = -1.0 + 2.0 * (i as f32 + 0.5) / nz as f32;
+                let phi = std::f32::consts::TAU * (j as f32 + 0.5) / nphi as f32;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                integral += d.pdf(Vec3::new(r * phi.cos(), r * phi.sin(), z)) as f64;
+            }
+        }
+        integral *= 4.0 * std::f64::consts::PI / (nz * nphi) as f64;
+        assert!((integral - 1.0).abs() < 0.02, "integral {integral}");
+        // The learned distribution favours the light's direction.
+        assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z));
+    }
+}
