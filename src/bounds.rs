@@ -45,11 +45,16 @@ impl Aabb {
     }
 
     /// The smallest cube with the same centre that contains this box: the spatial tree's root,
-    /// so that splitting at midpoints with cycling axes keeps cells close to cubes.
+    /// so that splitting at midpoints with cycling axes keeps cells close to cubes. Its corners
+    /// are rounded outward where `centre ± half side` rounds inward, so every point of the box is
+    /// in the cube.
     pub fn bounding_cube(&self) -> Aabb {
         let half = 0.5 * self.extent().max_element();
         let c = self.center();
-        Aabb::new(c - Vec3::splat(half), c + Vec3::splat(half))
+        Aabb::new(
+            (c - Vec3::splat(half)).min(self.min),
+            (c + Vec3::splat(half)).max(self.max),
+        )
     }
 
     /// The nearest point of the box to `p`.

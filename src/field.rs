@@ -63,24 +63,29 @@ impl GuidingField {
     /// A field over `bounds` (the scene's bounding box) that has learned nothing yet: every
     /// distribution is uniform over the sphere until the first [`refine`](Self::refine).
     ///
-    /// Fails if `config` is out of range or `bounds` is not a finite box with some extent.
+    /// Fails if `config` is out of range or `bounds` is not a finite box with some extent, or
+    /// with an extent too small to partition in `f32` where it lies (a subnormal extent, or one
+    /// far below the float spacing at its position).
     pub fn new(bounds: Aabb, config: GuidingConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let extent = bounds.extent();
+        let cube = bounds.bounding_cube();
         if !(bounds.min.is_finite() && bounds.max.is_finite() && extent.is_finite())
             || extent.min_element() < 0.0
             || extent.max_element() <= 0.0
+            || !SpatialTree::can_partition(cube)
         {
             return Err(ConfigError {
                 field: "bounds",
                 value: format!("{bounds:?}"),
-                requirement: "finite, with min <= max, some extent, and an extent that is finite",
+                requirement: "finite, with min <= max, and an extent that is finite and large \
+                              enough to partition in f32 where the box lies",
             });
         }
         let mut field = Self {
             bounds,
             config,
-            spatial: SpatialTree::new(bounds.bounding_cube()),
+            spatial: SpatialTree::new(cube),
             trees: vec![DirectionalTree::default()],
             iteration: 0,
             rejected: RejectCounters::default(),

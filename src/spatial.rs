@@ -54,6 +54,17 @@ pub(crate) struct SpatialTree {
 }
 
 impl SpatialTree {
+    /// Whether a tree can partition `cube`: every side positive and normal, and the fixed-point
+    /// scale `2^FIXED_BITS / side` finite. A box far smaller than a float's spacing at its
+    /// position, or with a subnormal extent, has a cube whose sides round to zero or to a
+    /// subnormal: every position would map to one corner.
+    pub(crate) fn can_partition(cube: Aabb) -> bool {
+        let side = cube.extent();
+        side.cmpge(Vec3::splat(f32::MIN_POSITIVE)).all()
+            && side.is_finite()
+            && ((1u32 << FIXED_BITS) as f32 / side.x).is_finite()
+    }
+
     /// A tree with one leaf (directional tree 0) covering `cube`.
     pub(crate) fn new(cube: Aabb) -> Self {
         Self::from_nodes(cube, vec![LEAF_BIT])

@@ -277,6 +277,13 @@ fn absurd_configs_and_bounds_are_typed_errors() {
         Aabb::new(Vec3::ZERO, Vec3::new(1.0, NAN, 1.0)),
         Aabb::new(Vec3::splat(-INF), Vec3::ONE),
         Aabb::new(Vec3::splat(-3e38), Vec3::splat(3e38)),
+        // A subnormal extent: its cube's side rounds to zero.
+        Aabb::new(Vec3::ZERO, Vec3::new(f32::from_bits(1), 0.0, 0.0)),
+        Aabb::new(Vec3::ZERO, Vec3::splat(1e-39)),
+        // A normal extent too small for the fixed-point scale (2^24 / side overflows).
+        Aabb::new(Vec3::ZERO, Vec3::new(4.0 * f32::MIN_POSITIVE, 0.0, 0.0)),
+        // A box far below the float spacing where it lies.
+        Aabb::new(Vec3::splat(1e7), Vec3::new(1e7, 1e7 + 1.0, 1e7)),
     ] {
         assert_eq!(
             GuidingField::new(bad, ok.clone()).unwrap_err().field,
@@ -285,6 +292,44 @@ fn absurd_configs_and_bounds_are_typed_errors() {
     }
     // A flat box (a single wall) is fine: the field covers its bounding cube.
     assert!(GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0)), ok).is_ok());
+}
+
+/// Every point of accepted bounds is inside the field, whatever the rounding of its bounding
+/// cube: boxes whose centre ± half side rounds inward, tiny normal extents, boxes far from the
+/// origin. A sample at each of the eight corners is recorded, none refused as out of bounds.
+#[test]
+fn every_corner_of_accepted_bounds_is_recorded() {
+    let boxes = [
+        Aabb::new(Vec3::ZERO, Vec3::ONE),
+        Aabb::new(Vec3::ZERO, Vec3::new(1e-30, 0.0, 0.0)),
+        // Centre ± half side rounds to the centre: the cube must be widened to the box.
+        Aabb::new(Vec3::splat(1e7), Vec3::splat(1e7 + 1.0)),
+        Aabb::new(Vec3::splat(1e-30), Vec3::splat(3e-30)),
+        Aabb::new(
+            Vec3::splat(1.0),
+            Vec3::new(1.0 + 3.0 * f32::EPSILON, 1.0, 1.0),
+        ),
+        Aabb::new(Vec3::splat(1e7), Vec3::new(1e7 + 3.0, 1e7 + 1.0, 1e7)),
+        Aabb::new(Vec3::new(-1e30, 0.0, 7.0), Vec3::new(1e30, 1.0, 7.5)),
+        Aabb::new(Vec3::splat(0.1), Vec3::splat(0.1 + 1e-6)),
+    ];
+    for bounds in boxes {
+        let field = GuidingField::new(bounds, GuidingConfig::default())
+            .unwrap_or_else(|e| panic!("{bounds:?}: {e}"));
+        for corner in 0..8 {
+            let pick = |bit: u32, lo: f32, hi: f32| if corner >> bit & 1 == 0 { lo } else { hi };
+            let p = Vec3::new(
+                pick(0, bounds.min.x, bounds.max.x),
+                pick(1, bounds.min.y, bounds.max.y),
+                pick(2, bounds.min.z, bounds.max.z),
+            );
+            assert!(
+                field.try_record(&Sample::new(p, Vec3::Z, 1.0, 1.0)).is_ok(),
+                "{bounds:?}: corner {p} refused"
+            );
+        }
+        assert_eq!(field.stats().rejected.total(), 0);
+    }
 }
 
 #[test]
