@@ -406,7 +406,9 @@ void sdg_distribution_destroy(sdg_distribution *dist);
 
 /*
  Ends an iteration (see the Rust `GuidingField::refine`). Takes the field exclusively: waits
- until no other thread is recording or querying and every distribution is destroyed.
+ for the calls in flight and until every distribution is destroyed; meanwhile new calls from
+ threads that hold no distribution wait behind it, so threads that keep recording cannot
+ starve it.
 
  # Safety
  `field` must be null or valid.

@@ -11,9 +11,16 @@
 //! threads at once; `sdg_field_refine` and `sdg_field_merge` take it exclusively, waiting for
 //! every shared user — including every live `sdg_distribution`, which holds the lock shared until
 //! destroyed. The lock costs one atomic increment and decrement per call (tens of nanoseconds,
-//! contended only by a refine). Shared acquisitions are recursive, so a thread holding a
-//! distribution can go on recording and querying while a refine waits; the refine runs once
-//! the threads stop (between passes), and cannot deadlock against them.
+//! contended only by a refine).
+//!
+//! The lock is fair to writers: once a refine or merge waits, a new shared call blocks until it
+//! is done, so render threads that record and query without pause cannot starve it; it waits
+//! only for the calls in flight and the live distributions. The one exception keeps it free of
+//! deadlock: a thread that holds a distribution is let in while a writer waits (the writer waits
+//! for that distribution, so blocking its thread would wait forever). A render loop therefore
+//! either destroys each distribution when its vertex is done (then `sdg_field_refine` can be
+//! called at any time, from any thread, and pauses the workers for its duration), or stops its
+//! workers between passes.
 //!
 //! This crate is the only place in sdguide with `unsafe` code: reading and writing through the
 //! pointers C passes in. Each use states what it relies on.
@@ -28,7 +35,7 @@ use sdguide::{
     Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
     SpatialFilter,
 };
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::ffi::{CStr, CString, c_char};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -209,10 +216,34 @@ pub struct sdg_field {
 pub struct sdg_distribution {
     field: ArcRwLockReadGuard<RawRwLock, GuidingField>,
     position: Vec3,
+    /// The thread that made it, whose count of held distributions it is in.
+    owner: std::thread::ThreadId,
+}
+
+impl Drop for sdg_distribution {
+    fn drop(&mut self) {
+        // Destroyed on another thread, the owner's count stays up: its calls keep re-entering,
+        // which can delay a writer but never deadlock.
+        if std::thread::current().id() == self.owner {
+            HELD.with(|h| h.set(h.get().saturating_sub(1)));
+        }
+    }
 }
 
 thread_local! {
     static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+    /// Live distributions this thread made: while any is held, its shared calls re-enter.
+    static HELD: Cell<u32> = const { Cell::new(0) };
+}
+
+/// Shared access for one call: behind a waiting writer (fair), unless this thread holds a
+/// distribution, which the writer waits for (see the crate documentation).
+fn shared(lock: &RwLock<GuidingField>) -> parking_lot::RwLockReadGuard<'_, GuidingField> {
+    if HELD.with(Cell::get) > 0 {
+        lock.read_recursive()
+    } else {
+        lock.read()
+    }
 }
 
 /// The message of the last failed call on this thread (empty if none failed). The pointer stays
@@ -431,7 +462,7 @@ pub unsafe extern "C" fn sdg_field_record(
     guard(|| {
         // SAFETY: the caller's contract.
         let (f, s) = unsafe { (arg(field, "field")?, arg(sample, "sample")?) };
-        Ok(record(&f.inner.read_recursive(), s))
+        Ok(record(&shared(&f.inner), s))
     })
 }
 
@@ -468,7 +499,7 @@ pub unsafe extern "C" fn sdg_field_record_batch(
         }
         // SAFETY: non-null and pointing to `count` initialized samples (caller's contract).
         let batch = unsafe { std::slice::from_raw_parts(samples, count) };
-        let field = f.inner.read_recursive();
+        let field = shared(&f.inner);
         let mut status = sdg_status::Ok;
         for s in batch {
             if record(&field, s) != sdg_status::Ok {
@@ -497,7 +528,7 @@ pub unsafe extern "C" fn sdg_field_sample(
         // SAFETY: the caller's contract.
         let f = unsafe { arg(field, "field") }?;
         let x = finite(position.into(), "position")?;
-        let (d, p) = sample(&f.inner.read_recursive(), x, u0, u1)?;
+        let (d, p) = sample(&shared(&f.inner), x, u0, u1)?;
         // SAFETY: the caller's contract.
         unsafe { write_sample(direction, pdf, d, p) }
     })
@@ -548,7 +579,7 @@ pub unsafe extern "C" fn sdg_field_pdf(
         let f = unsafe { arg(field, "field") }?;
         let x = finite(position.into(), "position")?;
         let d = finite(direction.into(), "direction")?;
-        let p = f.inner.read_recursive().distribution(x).pdf(d);
+        let p = shared(&f.inner).distribution(x).pdf(d);
         // SAFETY: the caller's contract.
         unsafe { put(pdf, "pdf", p) }?;
         Ok(sdg_status::Ok)
@@ -573,10 +604,17 @@ pub unsafe extern "C" fn sdg_field_distribution(
         if out.is_null() {
             return fail(sdg_status::NullPointer, "`out` is null");
         }
-        // Recursive: a thread holding a distribution may take another while a refine waits.
+        // A thread holding a distribution may take another while a refine waits.
+        let field = if HELD.with(Cell::get) > 0 {
+            f.inner.read_arc_recursive()
+        } else {
+            f.inner.read_arc()
+        };
+        HELD.with(|h| h.set(h.get().saturating_add(1)));
         let dist = Box::new(sdg_distribution {
-            field: f.inner.read_arc_recursive(),
+            field,
             position,
+            owner: std::thread::current().id(),
         });
         // SAFETY: non-null, valid for writes by the caller's contract.
         unsafe { out.write(Box::into_raw(dist)) };
@@ -661,7 +699,9 @@ pub unsafe extern "C" fn sdg_distribution_destroy(dist: *mut sdg_distribution) {
 }
 
 /// Ends an iteration (see the Rust `GuidingField::refine`). Takes the field exclusively: waits
-/// until no other thread is recording or querying and every distribution is destroyed.
+/// for the calls in flight and until every distribution is destroyed; meanwhile new calls from
+/// threads that hold no distribution wait behind it, so threads that keep recording cannot
+/// starve it.
 ///
 /// # Safety
 /// `field` must be null or valid.
@@ -687,7 +727,7 @@ pub unsafe extern "C" fn sdg_field_stats(
     guard(|| {
         // SAFETY: the caller's contract.
         let f = unsafe { arg(field, "field") }?;
-        let s = f.inner.read_recursive().stats();
+        let s = shared(&f.inner).stats();
         let r = s.rejected;
         let stats = sdg_stats {
             iteration: s.iteration,
@@ -750,10 +790,7 @@ pub unsafe extern "C" fn sdg_field_save(
     guard(|| {
         // SAFETY: the caller's contract.
         let (f, path) = unsafe { (arg(field, "field")?, path_arg(path)?) };
-        f.inner
-            .read_recursive()
-            .save_to_path(path)
-            .map_err(cache_failure)?;
+        shared(&f.inner).save_to_path(path).map_err(cache_failure)?;
         Ok(sdg_status::Ok)
     })
 }
@@ -797,7 +834,7 @@ pub unsafe extern "C" fn sdg_field_save_to_buffer(
         if data.is_null() || len.is_null() {
             return fail(sdg_status::NullPointer, "`data` or `len` is null");
         }
-        let bytes = f.inner.read_recursive().to_bytes().into_boxed_slice();
+        let bytes = shared(&f.inner).to_bytes().into_boxed_slice();
         let n = bytes.len();
         // SAFETY: both non-null, valid for writes (caller's contract). The box is given to C and
         // comes back, with its length, in `sdg_buffer_free`.
@@ -867,9 +904,9 @@ pub unsafe extern "C" fn sdg_field_merge(
         // Lock in address order, so two merges in opposite directions cannot deadlock.
         let (mut ours, theirs) = if Arc::as_ptr(&f.inner) < Arc::as_ptr(&o.inner) {
             let w = f.inner.write();
-            (w, o.inner.read_recursive())
+            (w, shared(&o.inner))
         } else {
-            let r = o.inner.read_recursive();
+            let r = shared(&o.inner);
             (f.inner.write(), r)
         };
         ours.merge(&theirs)
