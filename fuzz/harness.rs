@@ -11,9 +11,13 @@ use sdguide::{
     SpatialFilter,
 };
 
-/// At most this many operations and refines per input, so every input runs in milliseconds.
+/// At most this many operations, refines and save–load round trips per input, and a memory
+/// budget of at most 1 MiB (`field_from`), so that an input runs in about a millisecond and the
+/// fuzzer explores thousands of them a second. The budget binds often, which fuzzes the growth
+/// limits too; larger fields take the same code paths, only longer.
 const MAX_OPS: usize = 256;
 const MAX_REFINES: usize = 8;
+const MAX_ROUND_TRIPS: usize = 4;
 
 /// Arbitrary bytes as a cache: as given, and with the length field and checksum repaired so
 /// that mutations reach the structural validation behind the checksum.
@@ -45,7 +49,7 @@ pub fn field_ops(data: &[u8]) {
     let Some(mut field) = field_from(&mut b) else {
         return;
     };
-    let mut refines = 0;
+    let (mut refines, mut round_trips) = (0, 0);
     for _ in 0..MAX_OPS {
         let Some(op) = b.u8() else { break };
         match op % 6 {
@@ -78,10 +82,20 @@ pub fn field_ops(data: &[u8]) {
                 let (d, pdf) = check_query(&field, x, u);
                 field.record(&Sample::new(x, d, v, pdf));
             }
-            4 => {
+            4 if round_trips < MAX_ROUND_TRIPS => {
+                round_trips += 1;
                 let bytes = field.to_bytes();
                 let loaded = GuidingField::from_bytes(&bytes).expect("a saved field loads");
                 assert_eq!(loaded.to_bytes(), bytes, "load ∘ save is the identity");
+                // A render farm's merge: a copy merges exactly, its counts added.
+                let mut twin = GuidingField::from_bytes(&bytes).expect("a saved field loads");
+                twin.merge(&loaded)
+                    .expect("a field merges with its own copy");
+                assert_eq!(
+                    twin.stats().samples_recorded,
+                    2 * loaded.stats().samples_recorded,
+                    "merge adds the counts"
+                );
                 field = loaded;
             }
             _ => {
@@ -93,7 +107,7 @@ pub fn field_ops(data: &[u8]) {
 }
 
 /// A field from fuzz bytes: every configuration field and the bounds are arbitrary (the memory
-/// budget is at most 16 MiB so that inputs stay cheap); invalid ones are refused by `new`.
+/// budget is at most 1 MiB so that inputs stay cheap); invalid ones are refused by `new`.
 fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
     let mut config = GuidingConfig {
         rule: if b.u8()? & 1 == 0 {
@@ -107,7 +121,7 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
         uniform_fraction: b.f32()?,
         max_directional_nodes: u32::from(b.u16()?),
         max_spatial_nodes: u32::from(b.u16()?),
-        max_memory_bytes: u64::from(b.u8()?) << 16,
+        max_memory_bytes: u64::from(b.u8()?) << 12,
         ..GuidingConfig::default()
     };
     let bounds = Aabb::new(b.vec3()?, b.vec3()?);

@@ -1,6 +1,6 @@
 #![no_main]
 //! Arbitrary configurations and sequences of record / refine / distribution / sample / pdf /
-//! save / load: never a panic, and the library's guarantees hold throughout.
+//! save / load / merge: never a panic, and the library's guarantees hold throughout.
 
 use libfuzzer_sys::fuzz_target;
 
