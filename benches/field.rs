@@ -1,6 +1,6 @@
 //! Criterion benchmarks of the three hot operations on the standard workload.
 //!
-//! The workload (see `sdguide::synthetic`): the unit room, points on three walls and a sphere,
+//! The workload (see `sdguide_lab::synthetic`): the unit room, points on three walls and a sphere,
 //! light from two vMF lobes (κ = 800 and κ = 60) plus a small ambient term; trained 6 iterations
 //! with doubling budgets from 1M samples, directions drawn ½ uniform, ½ from the learned
 //! distribution. Set `SDGUIDE_BENCH_BUDGET` to train on a smaller first budget.
@@ -14,8 +14,8 @@
 
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
-use sdguide::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
 use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Refinement, Sample, SpatialFilter};
+use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
 use std::hint::black_box;
 use std::sync::OnceLock;
 

@@ -1,4 +1,4 @@
-//! The quality harness's tables and plot (see `sdguide::quality` and `docs/quality.md`).
+//! The quality harness's tables and plot (see `sdguide_lab::quality` and `docs/quality.md`).
 //!
 //! 1. Relative variance of uniform sampling, of fields trained with the `L1` and `L2` rules, and
 //!    of the oracle (the best piecewise-constant density on the learned partition), on every
@@ -13,8 +13,8 @@
 //! cargo run --release --example quality [-- --iterations 5 --budget 250000 --plot out/quality.png]
 //! ```
 
-use sdguide::quality::{self, Budget, Holdout, Report, TestField};
 use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement, SpatialFilter};
+use sdguide_lab::quality::{self, Budget, Holdout, Report, TestField};
 use std::time::Instant;
 
 #[path = "common/plot.rs"]

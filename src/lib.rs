@@ -60,12 +60,11 @@
 //! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
 //! - [`selection`]: the per-cell probability of sampling the guide rather than the BSDF.
-//! - [`synthetic`]: analytic light fields, a BSDF and a training workload for tests and
-//!   benchmarks.
-//! - [`quality`]: the exact relative variance of a trained field and the oracle bound on its
-//!   partition.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
+//!
+//! The analytic light fields, the training workload and the quality harness the tests and the
+//! documented tables use live in the workspace's `lab` crate, not here.
 
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -79,7 +78,6 @@ mod merge;
 pub mod mixture;
 mod moments;
 mod quadtree;
-pub mod quality;
 pub mod refinement;
 mod rule;
 mod sample;
@@ -87,7 +85,6 @@ pub mod selection;
 mod spatial;
 pub mod sphere;
 mod stats;
-pub mod synthetic;
 
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};

@@ -4,8 +4,8 @@ mod common;
 
 use common::cell_integrals;
 use glam::{Vec2, Vec3};
-use sdguide::synthetic::{LightField, Workload};
 use sdguide::{Aabb, GuidingConfig, GuidingField, Rejections, Sample};
+use sdguide_lab::synthetic::{LightField, Workload};
 
 const NAN: f32 = f32::NAN;
 const INF: f32 = f32::INFINITY;

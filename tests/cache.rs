@@ -2,10 +2,10 @@
 //! panic), keeps reading old files, and merges workers' statistics exactly.
 
 use glam::Vec3;
-use sdguide::synthetic::{LightField, Rng, Workload, room_bounds};
 use sdguide::{
     CacheError, DirectionalFilter, GuidingConfig, GuidingField, MergeError, Refinement, Sample,
 };
+use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds};
 
 fn workload() -> Workload {
     Workload {

@@ -1,7 +1,7 @@
 //! Recording from many threads loses nothing: per-leaf moments equal a serial recording's.
 
-use sdguide::synthetic::{LightField, Rng, Workload};
 use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample};
+use sdguide_lab::synthetic::{LightField, Rng, Workload};
 
 /// A field with a non-trivial topology (several spatial leaves, deep quadtrees).
 fn pretrained(workload: &Workload, directional_filter: DirectionalFilter) -> GuidingField {
@@ -9,7 +9,7 @@ fn pretrained(workload: &Workload, directional_filter: DirectionalFilter) -> Gui
         directional_filter,
         ..GuidingConfig::default()
     };
-    let mut field = GuidingField::new(sdguide::synthetic::room_bounds(), config).unwrap();
+    let mut field = GuidingField::new(sdguide_lab::synthetic::room_bounds(), config).unwrap();
     workload.train(&mut field, 3, 100_000);
     field
 }

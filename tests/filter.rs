@@ -3,10 +3,10 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::sphere::square_to_direction;
-use sdguide::synthetic::{LightField, Rng, Workload};
 use sdguide::{
     Aabb, DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample, SpatialFilter,
 };
+use sdguide_lab::synthetic::{LightField, Rng, Workload};
 
 fn unit_box() -> Aabb {
     Aabb::new(Vec3::ZERO, Vec3::ONE)
@@ -67,7 +67,7 @@ fn every_filter_keeps_each_samples_whole_weight_and_counts_it_once() {
             DirectionalFilter::DeferredBox,
         ] {
             let mut field = GuidingField::new(
-                sdguide::synthetic::room_bounds(),
+                sdguide_lab::synthetic::room_bounds(),
                 GuidingConfig {
                     spatial_threshold: 200.0,
                     ..config(spatial, directional)

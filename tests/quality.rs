@@ -9,9 +9,9 @@
 //! budget. The harness's own table (`cargo run --release --example quality`) uses the default
 //! budget.
 
-use sdguide::quality::{self, Budget, Holdout, Report, TestField, cell_integrals};
-use sdguide::synthetic::Rng;
 use sdguide::{GuidingConfig, GuidingField, LeafRule, Refinement};
+use sdguide_lab::quality::{self, Budget, Holdout, Report, TestField, cell_integrals};
+use sdguide_lab::synthetic::Rng;
 
 const BUDGET: Budget = Budget {
     iterations: 5,
@@ -176,8 +176,11 @@ fn the_learned_estimator_is_unbiased_and_its_exact_variance_matches_monte_carlo(
         let w = &field.workload;
         let mut rng = Rng::new(41);
         for _ in 0..3 {
-            let x =
-                sdguide::synthetic::room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+            let x = sdguide_lab::synthetic::room_point([
+                rng.next_f32(),
+                rng.next_f32(),
+                rng.next_f32(),
+            ]);
             let dist = guiding.distribution(x);
             let n = 200_000;
             let nf = n as f64;

@@ -2,10 +2,10 @@
 //! estimator's second moment, found by brute force.
 
 use glam::Vec3;
-use sdguide::quality::golden_section_min;
 use sdguide::selection::{INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
-use sdguide::synthetic::{Bsdf, Rng, vmf_density};
 use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
+use sdguide_lab::quality::golden_section_min;
+use sdguide_lab::synthetic::{Bsdf, Rng, vmf_density};
 
 const X: Vec3 = Vec3::splat(0.5);
 const BSDF: Bsdf = Bsdf {

@@ -15,16 +15,16 @@
 //!    incident radiance, the mixture pdf, and the mixture terms the guide probability learns
 //!    from. Between training passes the caller refines the field (no thread may render then).
 //!
-//! With the `openpgl` feature, the same four points serve Intel Open PGL ([`Guide::OpenPgl`]):
+//! With the `openpgl` feature, the same four points serve Intel Open PGL (`Guide::OpenPgl`):
 //! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
 //! place, so that the two libraries are compared in one renderer.
 
 use crate::geometry::{Frame, Ray};
 use crate::material::{Material, luminance};
+use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::Vec2;
 use glam::Vec3;
-use sdguide::synthetic::Rng;
 use sdguide::{DirectionalDistribution, GuidingField, Sample};
 
 /// Longest path, in scattering events.

@@ -20,5 +20,6 @@ pub mod material;
 pub mod openpgl;
 pub mod reference;
 pub mod render;
+pub mod rng;
 pub mod scene;
 pub mod scenes;

@@ -10,8 +10,8 @@
 //! averaged, and its error against it would come out far too small.
 
 use crate::image::{Image, ImageError};
+use crate::rng::Rng;
 use crate::scene::Scene;
-use sdguide::synthetic::Rng;
 use std::fmt;
 use std::path::{Path, PathBuf};
 

@@ -4,10 +4,10 @@
 
 use crate::image::Image;
 use crate::integrator::{Guide, Guiding, radiance};
+use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use sdguide::synthetic::Rng;
 use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule};
 use std::time::{Duration, Instant};
 

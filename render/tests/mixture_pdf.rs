@@ -4,11 +4,11 @@
 //! at vertices of a trained field, with a 5σ bound from the sample variance.
 
 use glam::Vec3;
-use sdguide::synthetic::Rng;
 use sdguide::{GuidingConfig, GuidingField};
 use sdguide_render::integrator::VertexSampler;
 use sdguide_render::material::Material;
 use sdguide_render::render::{field_bounds, training_pass};
+use sdguide_render::rng::Rng;
 use sdguide_render::scenes::door;
 use std::f64::consts::PI;
 

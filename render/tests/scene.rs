@@ -3,10 +3,10 @@
 //! rays, and stored references are refused when they do not match the scene.
 
 use glam::Vec3;
-use sdguide::synthetic::Rng;
 use sdguide_render::geometry::{Ray, T_MIN};
 use sdguide_render::image::Image;
 use sdguide_render::reference::{self, ReferenceError};
+use sdguide_render::rng::Rng;
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{door, furnace, glossy_box, uplight};
 

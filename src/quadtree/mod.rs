@@ -143,7 +143,15 @@ impl DirectionalCell {
         s.cmpge(lo).all() && s.cmplt(hi).all()
     }
 
-    pub(crate) fn child(&self, q: usize) -> DirectionalCell {
+    /// The cell's quadrant `q` (0–3: bit 0 the upper half in x, bit 1 in y), one level down.
+    ///
+    /// ```
+    /// use glam::Vec2;
+    /// use sdguide::DirectionalCell;
+    /// let root = DirectionalCell { origin: Vec2::ZERO, size: 1.0, depth: 0 };
+    /// assert_eq!(root.child(3), DirectionalCell { origin: Vec2::splat(0.5), size: 0.5, depth: 1 });
+    /// ```
+    pub fn child(&self, q: usize) -> DirectionalCell {
         let half = 0.5 * self.size;
         let offset = Vec2::new((q & 1) as f32, (q >> 1) as f32) * half;
         DirectionalCell {

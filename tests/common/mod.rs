@@ -2,8 +2,8 @@
 #![allow(dead_code)]
 
 use glam::{Vec2, Vec3};
-use sdguide::synthetic::{LightField, Workload};
 use sdguide::{DirectionalDistribution, GuidingConfig, GuidingField, LeafRule};
+use sdguide_lab::synthetic::{LightField, Workload};
 
 /// A field trained on the standard light with the given rule and maximum directional depth.
 pub fn trained(rule: LeafRule, max_depth: u32, iterations: u32, first_budget: u64) -> GuidingField {
@@ -12,7 +12,7 @@ pub fn trained(rule: LeafRule, max_depth: u32, iterations: u32, first_budget: u6
         max_directional_depth: max_depth,
         ..GuidingConfig::default()
     };
-    let mut field = GuidingField::new(sdguide::synthetic::room_bounds(), config).unwrap();
+    let mut field = GuidingField::new(sdguide_lab::synthetic::room_bounds(), config).unwrap();
     Workload {
         light: LightField::standard(),
         lobe_noise: 1.0,

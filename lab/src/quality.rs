@@ -33,12 +33,12 @@
 //! follows where a sharp lobe happens to point from those few, which no density learned for
 //! the whole cell can, and comes out too low.
 
-use crate::selection::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
-use crate::sphere::{SPHERE_AREA, square_to_direction};
 use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
-use crate::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 use glam::Vec3;
 use rayon::prelude::*;
+use sdguide::selection::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
+use sdguide::sphere::{SPHERE_AREA, square_to_direction};
+use sdguide::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 
 /// A light field of the harness: the light, its noise, and a name for tables.
 #[derive(Clone, Debug)]
@@ -178,7 +178,7 @@ fn gauss_nodes(a: f64, h: f64, i: usize) -> [f64; 2] {
 /// 1/8 of the square are split first.
 ///
 /// ```
-/// use sdguide::quality::{TestField, cell_integrals};
+/// use sdguide_lab::quality::{TestField, cell_integrals};
 /// use sdguide::DirectionalCell;
 /// use glam::{Vec2, Vec3};
 /// let field = &TestField::all()[0];
@@ -426,7 +426,7 @@ impl Trained {
 /// (see [`Workload::record_iteration`]).
 ///
 /// ```
-/// use sdguide::quality::{Budget, Holdout, TestField, train};
+/// use sdguide_lab::quality::{Budget, Holdout, TestField, train};
 /// use sdguide::GuidingConfig;
 /// let field = &TestField::all()[0];
 /// let budget = Budget { iterations: 2, first: 20_000 };
@@ -534,7 +534,7 @@ const DRAWS_PER_POSITION: usize = 4096;
 /// below 1/4096). Cells no draw hit (no surface in them) are left out.
 fn held_out_regions(recorded: &GuidingField, holdout: Holdout) -> Vec<Region> {
     // Spatial cells are told apart by their boxes.
-    let key = |b: crate::Aabb| {
+    let key = |b: sdguide::Aabb| {
         let (lo, hi) = (b.min, b.max);
         [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z].map(f32::to_bits)
     };
@@ -664,7 +664,7 @@ const SELECTION_POSITIONS: usize = 64;
 /// The minimizer of a convex `f` on `[lo, hi]`, to 1e-6 (golden-section search).
 ///
 /// ```
-/// let x = sdguide::quality::golden_section_min(0.0, 1.0, |a| 1.0 / a + 4.0 / (1.0 - a));
+/// let x = sdguide_lab::quality::golden_section_min(0.0, 1.0, |a| 1.0 / a + 4.0 / (1.0 - a));
 /// assert!((x - 1.0 / 3.0).abs() < 1e-5); // the minimizer of 1/a + 4/(1 − a)
 /// ```
 pub fn golden_section_min(mut lo: f64, mut hi: f64, f: impl Fn(f64) -> f64) -> f64 {
@@ -688,8 +688,8 @@ pub fn golden_section_min(mut lo: f64, mut hi: f64, f: impl Fn(f64) -> f64) -> f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sphere::direction_to_square;
     use glam::Vec2;
+    use sdguide::sphere::direction_to_square;
 
     fn whole_sphere_in(depth: u32) -> Vec<DirectionalCell> {
         let n = 1u32 << depth;

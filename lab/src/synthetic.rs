@@ -8,10 +8,10 @@
 //! a path tracer would: points on surfaces of a unit room, directions drawn half from the uniform
 //! sphere and half from the learned distribution, recorded with the mixture pdf.
 
-use crate::sphere::{INV_SPHERE_AREA, SPHERE_AREA, square_to_direction};
-use crate::{GuidingField, Sample};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use sdguide::sphere::{INV_SPHERE_AREA, SPHERE_AREA, square_to_direction};
+use sdguide::{GuidingField, Sample};
 use std::f32::consts::TAU;
 
 /// A small, fast, deterministic random number generator (SplitMix64).
@@ -19,7 +19,7 @@ use std::f32::consts::TAU;
 /// Not for cryptography; good enough for Monte Carlo tests with fixed seeds.
 ///
 /// ```
-/// use sdguide::synthetic::Rng;
+/// use sdguide_lab::synthetic::Rng;
 /// let mut a = Rng::new(7);
 /// let mut b = Rng::new(7);
 /// assert_eq!(a.next_f32(), b.next_f32());
@@ -216,8 +216,8 @@ pub fn room_point(u: [f32; 3]) -> Vec3 {
 }
 
 /// The room's bounds.
-pub fn room_bounds() -> crate::Aabb {
-    crate::Aabb::new(Vec3::ZERO, Vec3::ONE)
+pub fn room_bounds() -> sdguide::Aabb {
+    sdguide::Aabb::new(Vec3::ZERO, Vec3::ONE)
 }
 
 /// Trains a field on a light field the way a path tracer would.
@@ -240,7 +240,7 @@ pub struct Workload {
     pub seed: u64,
     /// `None`: directions are drawn ½ from the uniform sphere and ½ from the guide. `Some`: from
     /// the one-sample mixture of the guide (with the cell's learned
-    /// [`guide_probability`](crate::DirectionalDistribution::guide_probability)) and this BSDF,
+    /// [`guide_probability`](sdguide::DirectionalDistribution::guide_probability)) and this BSDF,
     /// recorded with mixture terms whose integrand is `value · bsdf.pdf`.
     pub bsdf: Option<Bsdf>,
 }

@@ -1,0 +1,14 @@
+//! sdguide's lab: what the tests, benchmarks, examples and the quality tables measure the
+//! library with, kept out of its public API.
+//!
+//! - [`synthetic`]: analytic light fields (sums of von Mises–Fisher lobes, with their integrals
+//!   in closed form), a deterministic random number generator, and the standard training
+//!   workload that trains a field the way a path tracer would.
+//! - [`quality`]: the quality harness — the exact variance of the estimator a trained field
+//!   gives, against the best any density on the same partition could do (`docs/quality.md`).
+
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod quality;
+pub mod synthetic;
