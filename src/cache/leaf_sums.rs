@@ -1,0 +1,114 @@
+//! The optional `SELECTION` and `QUADRANTS` sections: each spatial leaf's guide-probability
+//! sums and each directional leaf's quadrant sums. Files without them load (older minors).
+
+use super::*;
+
+pub(super) fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + SELECTION_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let s = t.selection.sums();
+        out.f32(t.selection.probability);
+        out.u32(0);
+        out.f64(s.gradient);
+        out.f64(s.curvature);
+        out.u64(s.count);
+    }
+    out.0
+}
+
+/// Reads the optional selection section into `trees` (already decoded).
+pub(super) fn decode_selection(
+    bytes: &[u8],
+    trees: &mut [DirectionalTree],
+) -> Result<(), CacheError> {
+    let mut r = In {
+        bytes,
+        section: "selection",
+    };
+    let n = r.count(SELECTION_LEN, "selections")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            "selection",
+            format!("{n} selections for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let probability = r.f32()?;
+        r.u32()?;
+        let sums = SelectionSums {
+            gradient: r.f64()?,
+            curvature: r.f64()?,
+            count: r.u64()?,
+        };
+        let in_range = (MIN_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY).contains(&probability);
+        let sums_ok = sums.gradient.is_finite()
+            && sums.curvature.is_finite()
+            && sums.curvature >= 0.0
+            && (sums.count > 0 || (sums.gradient == 0.0 && sums.curvature == 0.0));
+        if !(in_range && sums_ok) {
+            return Err(corrupt(
+                "selection",
+                format!("tree {i}: probability {probability}, sums {sums:?}"),
+            ));
+        }
+        t.selection = GuideSelection::from_parts(probability, sums);
+    }
+    Ok(())
+}
+
+pub(super) fn encode_quadrants(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::new());
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let q = &t.recording.quadrants;
+        out.u32(q.len() as u32);
+        for (s2, n) in q.iter().flat_map(|q| q.get()) {
+            out.f64(s2);
+            out.u64(n);
+        }
+    }
+    out.0
+}
+
+/// Reads the optional quadrants section into `trees` (already decoded).
+pub(super) fn decode_quadrants(
+    bytes: &[u8],
+    trees: &mut [DirectionalTree],
+) -> Result<(), CacheError> {
+    let section = "quadrants";
+    let mut r = In { bytes, section };
+    let n = r.count(4, "trees")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            section,
+            format!("{n} trees of quadrant sums for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let leaves = r.count(QUADRANTS_LEN, "leaves")?;
+        if leaves != t.recording.moments.len() {
+            return Err(corrupt(
+                section,
+                format!(
+                    "tree {i}: {leaves} leaves of quadrant sums for {} leaves",
+                    t.recording.moments.len()
+                ),
+            ));
+        }
+        for (k, slot) in t.recording.quadrants.iter_mut().enumerate() {
+            let mut q = [(0.0, 0); 4];
+            for x in &mut q {
+                *x = (r.f64()?, r.u64()?);
+            }
+            if !q.iter().all(|(s2, _)| s2.is_finite() && *s2 >= 0.0) {
+                return Err(corrupt(
+                    section,
+                    format!("tree {i}, leaf {k}: quadrant sums {q:?}"),
+                ));
+            }
+            *slot = AtomicQuadrants::from_quadrants(q);
+        }
+    }
+    Ok(())
+}

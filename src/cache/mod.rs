@@ -1,0 +1,307 @@
+//! The guiding cache: a whole field as a versioned, checksummed, validated binary file.
+//!
+//! The format is specified byte by byte in `docs/cache-format.md`, so that a tool in another
+//! language can read it. In short: a 32-byte header (magic, major/minor version, file length), a
+//! table of sections (kind, flags, offset, length), the sections — `META` (configuration, bounds,
+//! counters), `SPATIAL` (the binary tree), `DIRECTIONAL` (every quadtree: sampling nodes,
+//! recording topology, moments) — and a CRC-32 of everything before it. All numbers are
+//! little-endian.
+//!
+//! Reading trusts nothing: every size is checked against the bytes that are there before
+//! anything is allocated, every child index must point forward and inside its tree, every node
+//! must have exactly one parent, depths and node counts stay within the configuration, and every
+//! number must be finite and in range. A malformed file is a [`CacheError`], never a panic.
+
+use crate::guide_probability::{
+    GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
+};
+use crate::moments::{AtomicMoments, AtomicQuadrants};
+use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
+use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
+use crate::stats::RejectCounters;
+use crate::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Refinement,
+    Rejections, SpatialFilter,
+};
+use glam::Vec3;
+use std::fmt;
+use std::io::{self, Read, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+mod bytes;
+mod envelope;
+mod leaf_sums;
+mod meta;
+mod trees;
+mod validate;
+
+use bytes::{In, Out};
+use envelope::{read_envelope, write_envelope};
+use leaf_sums::{decode_quadrants, decode_selection, encode_quadrants, encode_selection};
+use meta::{decode_meta, encode_meta};
+use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
+use validate::{check_permutation, check_tree, node_count};
+
+/// The first eight bytes of every cache file.
+pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
+/// The format's major version: a reader refuses other majors. Major 2 has the byte layout of
+/// 1.2, with the directional trees on the octahedral map (see [`sphere`](crate::sphere)); in a
+/// 1.x file they are on the cylindrical map, so the same bytes mean other directions.
+pub const FORMAT_MAJOR: u16 = 2;
+/// The format's minor version: a reader loads any minor of its major, skipping what it does
+/// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
+/// (the deferred box filter) to `META`; a 2.0 reader refuses files that use it.
+pub const FORMAT_MINOR: u16 = 1;
+
+const HEADER_LEN: usize = 32;
+const ENTRY_LEN: usize = 24;
+const CHECKSUM_LEN: usize = 4;
+const SECTION_META: u32 = 1;
+const SECTION_SPATIAL: u32 = 2;
+const SECTION_DIRECTIONAL: u32 = 3;
+/// 1.1: each spatial leaf's guide-vs-BSDF selection (optional: a reader without it starts at ½).
+const SECTION_SELECTION: u32 = 4;
+const SELECTION_LEN: usize = 32;
+/// 1.2: each directional leaf's quadrant sums, for refinement by variance gain (optional: a
+/// reader without it starts the iteration's quadrant sums at zero).
+const SECTION_QUADRANTS: u32 = 5;
+const QUADRANTS_LEN: usize = 64;
+/// Section flag: a reader that does not know the section's kind must refuse the file.
+const FLAG_REQUIRED: u32 = 1;
+/// Length of the `META` section in format 1.0 (readers need at least this much).
+const META_LEN_1_0: usize = 176;
+/// Length of the `META` section in format 1.1.
+const META_LEN_1_1: usize = 184;
+/// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
+/// filters, 1.2 the refinement criterion and its threshold).
+const META_LEN: usize = 192;
+const SAMPLING_NODE_LEN: usize = 32;
+const RECORDING_NODE_LEN: usize = 16;
+const MOMENTS_LEN: usize = 24;
+/// Tolerance on probabilities that should sum to 1 (they are `f32` roundings of `f64` ratios).
+const SUM_TOLERANCE: f32 = 1e-4;
+
+/// Why a cache could not be read or written.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum CacheError {
+    /// Reading or writing failed.
+    Io(io::Error),
+    /// The input does not start with [`MAGIC`]: not a cache file.
+    BadMagic,
+    /// The file's major version is not one this library reads.
+    UnsupportedVersion {
+        /// `(major, minor)` of the file.
+        found: (u16, u16),
+        /// `(major, minor)` this library writes; it reads every minor of that major.
+        supported: (u16, u16),
+    },
+    /// The input ends before the length its header declares.
+    Truncated {
+        /// Bytes the file should have.
+        expected: u64,
+        /// Bytes there are.
+        found: u64,
+    },
+    /// The CRC-32 stored at the end does not match the contents.
+    ChecksumMismatch {
+        /// The checksum in the file.
+        stored: u32,
+        /// The checksum of what was read.
+        computed: u32,
+    },
+    /// A part of the file is malformed (only possible when the checksum was forged or the
+    /// writer was faulty).
+    Corrupt {
+        /// The part: `"header"`, `"sections"`, `"meta"`, `"spatial"` or `"directional"`.
+        section: &'static str,
+        /// What is wrong with it.
+        detail: String,
+    },
+}
+
+impl fmt::Display for CacheError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CacheError::Io(e) => write!(f, "cache i/o failed: {e}"),
+            CacheError::BadMagic => write!(f, "not a sdguide cache (bad magic)"),
+            CacheError::UnsupportedVersion { found, supported } => write!(
+                f,
+                "unsupported cache version {}.{} (this library reads {}.x, writes {}.{})",
+                found.0, found.1, supported.0, supported.0, supported.1
+            ),
+            CacheError::Truncated { expected, found } => {
+                write!(f, "cache truncated: {found} bytes of {expected}")
+            }
+            CacheError::ChecksumMismatch { stored, computed } => write!(
+                f,
+                "cache checksum mismatch: stored {stored:08x}, computed {computed:08x}"
+            ),
+            CacheError::Corrupt { section, detail } => {
+                write!(f, "corrupt cache ({section}): {detail}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for CacheError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            CacheError::Io(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<io::Error> for CacheError {
+    fn from(e: io::Error) -> Self {
+        CacheError::Io(e)
+    }
+}
+
+fn corrupt(section: &'static str, detail: impl Into<String>) -> CacheError {
+    CacheError::Corrupt {
+        section,
+        detail: detail.into(),
+    }
+}
+
+impl GuidingField {
+    /// Writes the whole field — configuration, trees, the current iteration's statistics and
+    /// the counters — as a cache (see the module docs of `cache` and `docs/cache-format.md`).
+    ///
+    /// ```
+    /// use sdguide::{Aabb, GuidingConfig, GuidingField};
+    /// use glam::Vec3;
+    /// let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default())?;
+    /// let mut bytes = Vec::new();
+    /// field.save(&mut bytes)?;
+    /// let loaded = GuidingField::load(bytes.as_slice())?;
+    /// assert_eq!(loaded.stats(), field.stats());
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// # Errors
+    ///
+    /// [`CacheError::Io`] when the writer fails.
+    pub fn save(&self, mut writer: impl Write) -> Result<(), CacheError> {
+        writer.write_all(&self.to_bytes())?;
+        writer.flush()?;
+        Ok(())
+    }
+
+    /// The cache as bytes (what [`save`](Self::save) writes).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let sections = [
+            (SECTION_META, FLAG_REQUIRED, encode_meta(self)),
+            (
+                SECTION_SPATIAL,
+                FLAG_REQUIRED,
+                encode_spatial(&self.spatial),
+            ),
+            (
+                SECTION_DIRECTIONAL,
+                FLAG_REQUIRED,
+                encode_directional(&self.trees),
+            ),
+            (SECTION_SELECTION, 0, encode_selection(&self.trees)),
+            (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
+        ];
+        write_envelope(&sections)
+    }
+
+    /// Reads a cache written by [`save`](Self::save). The loaded field answers `sample` and
+    /// `pdf` exactly as the saved one did, and training can continue from it.
+    ///
+    /// # Errors
+    ///
+    /// [`CacheError::Io`] when the reader fails, and every error of
+    /// [`from_bytes`](Self::from_bytes).
+    pub fn load(mut reader: impl Read) -> Result<GuidingField, CacheError> {
+        let mut bytes = Vec::new();
+        reader.read_to_end(&mut bytes)?;
+        Self::from_bytes(&bytes)
+    }
+
+    /// Reads a cache from bytes (see [`load`](Self::load)).
+    ///
+    /// # Errors
+    ///
+    /// A [`CacheError`] saying what is wrong when the bytes are not a valid cache of a
+    /// supported version: bad magic, unsupported version, truncated, checksum mismatch, or a
+    /// corrupt section (with detail).
+    pub fn from_bytes(bytes: &[u8]) -> Result<GuidingField, CacheError> {
+        let sections = read_envelope(bytes)?;
+        let mut field = decode_meta(sections.meta)?;
+        field.spatial = decode_spatial(sections.spatial, &field)?;
+        field.trees = decode_directional(sections.directional, &field)?;
+        if let Some(bytes) = sections.selection {
+            decode_selection(bytes, &mut field.trees)?;
+        }
+        if let Some(bytes) = sections.quadrants {
+            decode_quadrants(bytes, &mut field.trees)?;
+        }
+        field.prepare_recording();
+        Ok(field)
+    }
+
+    /// Saves to `path` atomically: the cache is written to a temporary file in the same
+    /// directory, flushed to disk, and renamed over `path`. An interrupted save leaves the old
+    /// file (or none) in place, never a partial one.
+    ///
+    /// # Errors
+    ///
+    /// [`CacheError::Io`] when the path names no file or the temporary file cannot be
+    /// created, written, synced or renamed; the file at `path` is then left as it was.
+    pub fn save_to_path(&self, path: impl AsRef<Path>) -> Result<(), CacheError> {
+        static COUNTER: AtomicU64 = AtomicU64::new(0);
+        let path = path.as_ref();
+        let name = path
+            .file_name()
+            .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "the path names no file"))?;
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let tmp = dir.join(format!(
+            ".{}.{}-{}.tmp",
+            name.to_string_lossy(),
+            std::process::id(),
+            COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        let bytes = self.to_bytes();
+        let written = (|| {
+            let mut file = std::fs::File::create_new(&tmp)?;
+            file.write_all(&bytes)?;
+            file.sync_all()?;
+            drop(file);
+            std::fs::rename(&tmp, path)?;
+            sync_dir(dir)
+        })();
+        if written.is_err() {
+            // Best effort: the temporary file is ours and useless now.
+            let _ = std::fs::remove_file(&tmp);
+        }
+        Ok(written?)
+    }
+
+    /// Loads a cache file (see [`load`](Self::load)).
+    ///
+    /// # Errors
+    ///
+    /// [`CacheError::Io`] when the file cannot be read, and every error of
+    /// [`from_bytes`](Self::from_bytes).
+    pub fn load_from_path(path: impl AsRef<Path>) -> Result<GuidingField, CacheError> {
+        Self::from_bytes(&std::fs::read(path)?)
+    }
+}
+
+/// Makes a rename in `dir` durable (on Unix, by syncing the directory).
+fn sync_dir(dir: &Path) -> io::Result<()> {
+    #[cfg(unix)]
+    std::fs::File::open(dir)?.sync_all()?;
+    #[cfg(not(unix))]
+    let _ = dir;
+    Ok(())
+}

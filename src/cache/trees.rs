@@ -1,0 +1,205 @@
+//! The `SPATIAL` and `DIRECTIONAL` sections: the spatial tree's node entries, and every
+//! directional tree (sampling nodes, recording topology, moments), each encoder beside its
+//! decoder.
+
+use super::*;
+
+pub(super) fn encode_spatial(tree: &SpatialTree) -> Vec<u8> {
+    let nodes = tree.nodes();
+    let mut out = Out(Vec::with_capacity(4 + 4 * nodes.len()));
+    out.u32(nodes.len() as u32);
+    for &n in nodes {
+        out.u32(n);
+    }
+    out.0
+}
+
+pub(super) fn decode_spatial(
+    bytes: &[u8],
+    field: &GuidingField,
+) -> Result<SpatialTree, CacheError> {
+    let mut r = In {
+        bytes,
+        section: "spatial",
+    };
+    let n = r.count(4, "nodes")?;
+    if n == 0 || n > field.config.max_spatial_nodes as usize {
+        return Err(corrupt(
+            "spatial",
+            format!("{n} nodes, expected 1..={}", field.config.max_spatial_nodes),
+        ));
+    }
+    let nodes = (0..n).map(|_| r.u32()).collect::<Result<Vec<u32>, _>>()?;
+    check_tree(n, MAX_SPATIAL_DEPTH, |i| {
+        let e = nodes[i];
+        if e & spatial::LEAF_BIT != 0 {
+            [None, None]
+        } else {
+            [Some(e as usize), Some(e as usize + 1)]
+        }
+    })
+    .map_err(|d| corrupt("spatial", d))?;
+    // Leaves index directional trees 0..leaves, each exactly once.
+    let leaves: Vec<usize> = nodes
+        .iter()
+        .filter(|&&e| e & spatial::LEAF_BIT != 0)
+        .map(|&e| (e & !spatial::LEAF_BIT) as usize)
+        .collect();
+    check_permutation(&leaves).map_err(|d| corrupt("spatial", format!("leaf {d}")))?;
+    Ok(SpatialTree::from_nodes(field.spatial.cube(), nodes))
+}
+
+pub(super) fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::new());
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let s = t.sampling.nodes();
+        out.u32(s.len() as u32);
+        for n in s.iter() {
+            for p in n.px.iter().chain(n.py.iter().flatten()) {
+                out.f32(*p);
+            }
+            for c in n.child {
+                out.u16(c);
+            }
+        }
+        let r = &t.recording;
+        out.u32(r.nodes.len() as u32);
+        for slots in r.nodes.iter() {
+            for &s in slots {
+                out.u32(s);
+            }
+        }
+        // The moments as the format defines them: every sample's filtered share included.
+        r.flush_pending();
+        out.u32(r.moments.len() as u32);
+        for m in r.moments.iter() {
+            let m = m.get();
+            out.f64(m.sum);
+            out.f64(m.sum_sq);
+            out.u64(m.count);
+        }
+    }
+    out.0
+}
+
+pub(super) fn decode_directional(
+    bytes: &[u8],
+    field: &GuidingField,
+) -> Result<Vec<DirectionalTree>, CacheError> {
+    let mut r = In {
+        bytes,
+        section: "directional",
+    };
+    let leaves = field.spatial.leaves().len();
+    let n = r.count(12, "trees")?;
+    if n != leaves {
+        return Err(corrupt(
+            "directional",
+            format!("{n} trees for {leaves} spatial leaves"),
+        ));
+    }
+    let c = &field.config;
+    (0..n)
+        .map(|i| {
+            decode_tree(&mut r, c).map_err(|e| match e {
+                CacheError::Corrupt { section, detail } => {
+                    corrupt(section, format!("tree {i}: {detail}"))
+                }
+                other => other,
+            })
+        })
+        .collect()
+}
+
+pub(super) fn decode_tree(
+    r: &mut In<'_>,
+    c: &GuidingConfig,
+) -> Result<DirectionalTree, CacheError> {
+    let section = "directional";
+    // Interior node depth is at most max_depth − 1: their children, the leaves, reach max_depth.
+    let max_node_depth = c.max_directional_depth - 1;
+    let max_nodes = c.max_directional_nodes as usize;
+
+    let n = node_count(r, SAMPLING_NODE_LEN, "sampling nodes", max_nodes)?;
+    let mut sampling = Vec::with_capacity(n);
+    for i in 0..n {
+        let mut p = [0f32; 6];
+        for x in &mut p {
+            *x = r.f32()?;
+        }
+        let node = SamplingNode {
+            px: [p[0], p[1]],
+            py: [[p[2], p[3]], [p[4], p[5]]],
+            child: [r.u16()?, r.u16()?, r.u16()?, r.u16()?],
+        };
+        for pair in [node.px, node.py[0], node.py[1]] {
+            let ok = pair.iter().all(|&x| x > 0.0 && x <= 1.0)
+                && (pair[0] + pair[1] - 1.0).abs() <= SUM_TOLERANCE;
+            if !ok {
+                return Err(corrupt(
+                    section,
+                    format!("sampling node {i}: probabilities {pair:?}"),
+                ));
+            }
+        }
+        sampling.push(node);
+    }
+    check_tree(n, max_node_depth, |i| {
+        sampling[i]
+            .child
+            .map(|ch| (ch != quadtree::NO_CHILD).then_some(usize::from(ch)))
+    })
+    .map_err(|d| corrupt(section, format!("sampling tree: {d}")))?;
+
+    let n = node_count(r, RECORDING_NODE_LEN, "recording nodes", max_nodes)?;
+    let mut nodes = Vec::with_capacity(n);
+    for _ in 0..n {
+        nodes.push([r.u32()?, r.u32()?, r.u32()?, r.u32()?]);
+    }
+    check_tree(n, max_node_depth, |i| {
+        nodes[i].map(|s| (s & quadtree::LEAF_BIT == 0).then_some(s as usize))
+    })
+    .map_err(|d| corrupt(section, format!("recording tree: {d}")))?;
+    let leaf_slots: Vec<usize> = nodes
+        .iter()
+        .flatten()
+        .filter(|&&s| s & quadtree::LEAF_BIT != 0)
+        .map(|&s| (s & !quadtree::LEAF_BIT) as usize)
+        .collect();
+    check_permutation(&leaf_slots).map_err(|d| corrupt(section, format!("recording leaf {d}")))?;
+
+    let m = r.count(MOMENTS_LEN, "leaf moments")?;
+    if m != leaf_slots.len() {
+        return Err(corrupt(
+            section,
+            format!("{m} leaf moments for {} leaves", leaf_slots.len()),
+        ));
+    }
+    let mut moments = Vec::with_capacity(m);
+    for k in 0..m {
+        let mm = Moments {
+            sum: r.f64()?,
+            sum_sq: r.f64()?,
+            count: r.u64()?,
+        };
+        let sums_ok = [mm.sum, mm.sum_sq]
+            .iter()
+            .all(|s| s.is_finite() && *s >= 0.0);
+        // A zero count may carry sums: a box filter spreads shares into leaves it does not count.
+        if !sums_ok {
+            return Err(corrupt(section, format!("leaf {k}: moments {mm:?}")));
+        }
+        moments.push(AtomicMoments::from_moments(mm));
+    }
+    Ok(DirectionalTree {
+        sampling: SamplingTree::new(sampling.into_boxed_slice()),
+        recording: RecordingTree {
+            nodes: nodes.into_boxed_slice(),
+            quadrants: (0..moments.len()).map(|_| Default::default()).collect(),
+            moments: moments.into_boxed_slice(),
+            pending: Box::default(),
+        },
+        selection: GuideSelection::default(),
+    })
+}
