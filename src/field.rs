@@ -14,8 +14,8 @@ use crate::spatial::SpatialTree;
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, ConfigError, DirectionalCell, DirectionalFilter, FieldStats, GuidingConfig, Moments,
-    RejectReason, Rejections, Sample, SpatialFilter,
+    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason,
+    Rejections, Sample, SpatialFilter,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -34,7 +34,8 @@ use rayon::prelude::*;
 ///         let u = Vec2::new((i % 100) as f32 + 0.5, (i / 100) as f32 + 0.5) / 100.0;
 ///         let d = sdguide::sphere::square_to_direction(u);
 ///         let light = if d.z > 0.9 { 10.0 } else { 0.0 };
-///         field.record(&Sample::new(Vec3::splat(0.5), d, light, uniform_pdf));
+///         let (position, direction, value, pdf) = (Vec3::splat(0.5), d, light, uniform_pdf);
+///         field.record(&Sample { position, direction, value, pdf, ..Sample::default() });
 ///     }
 ///     field.refine();
 /// }
@@ -66,6 +67,11 @@ impl GuidingField {
     /// Fails if `config` is out of range or `bounds` is not a finite box with some extent, or
     /// with an extent too small to partition in `f32` where it lies (a subnormal extent, or one
     /// far below the float spacing at its position).
+    ///
+    /// # Errors
+    ///
+    /// A [`ConfigError`] naming the field of `config` that is out of range (see
+    /// [`GuidingConfig::validate`]), or `"bounds"` for bounds as described above.
     pub fn new(bounds: Aabb, config: GuidingConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let extent = bounds.extent();
@@ -99,7 +105,8 @@ impl GuidingField {
     }
 
     /// Gives the trees what the configured filter records into: pending sums for
-    /// [`DirectionalFilter::DeferredBox`] (refine gives them to the trees it builds).
+    /// [`DirectionalFilter::DeferredBox`](crate::DirectionalFilter::DeferredBox) (refine gives
+    /// them to the trees it builds).
     pub(crate) fn prepare_recording(&mut self) {
         if self.config.directional_filter.defers() {
             for t in &mut self.trees {
@@ -120,6 +127,10 @@ impl GuidingField {
 
     /// Records one sample like [`record`](Self::record), and says whether it was rejected (a
     /// rejected sample is counted all the same).
+    ///
+    /// # Errors
+    ///
+    /// The [`RejectReason`] of a rejected sample (which is counted, as by `record`).
     #[inline]
     pub fn try_record(&self, sample: &Sample) -> Result<(), RejectReason> {
         self.insert(sample)
@@ -156,14 +167,14 @@ impl GuidingField {
                 .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
         }
         match self.config.spatial_filter {
-            SpatialFilter::Nearest => self.insert_directional(home, square, w),
+            SpatialFilter::Nearest => self.insert_directional(home, square, w, true),
             SpatialFilter::Stochastic => {
                 let u = sample
                     .jitter
                     .unwrap_or_else(|| hash_jitter(p, sample.direction))
                     .clamp(Vec3::ZERO, Vec3::ONE);
                 let moved = self.spatial.cube().clamp(p + (u - 0.5) * extent);
-                self.insert_directional(self.spatial.leaf_at(moved), square, w);
+                self.insert_directional(self.spatial.leaf_at(moved), square, w, true);
             }
             SpatialFilter::Box => {
                 // The sample counts in its own leaf; its weights spread over the leaf-sized box
@@ -175,40 +186,27 @@ impl GuidingField {
                 );
                 let volume = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
                 if volume <= 0.0 {
-                    self.insert_directional(home, square, w);
+                    self.insert_directional(home, square, w, true);
                     return Ok(());
                 }
                 self.trees[home].recording.count_sample(square, w.1);
                 self.spatial.overlapping(lo, hi, |leaf, v| {
                     let share = v / volume;
                     let part = (w.0 * share, w.1 * share);
-                    self.insert_directional_sums(leaf, square, part);
+                    self.insert_directional(leaf, square, part, false);
                 });
             }
         }
         Ok(())
     }
 
-    /// Records weights `w` at `square` into spatial leaf `leaf`'s tree, as one sample, through
-    /// the directional filter.
+    /// Records weights `w` at `square` into spatial leaf `leaf`'s tree through the directional
+    /// filter; `counted`: as the sample's own record (see `RecordingTree::record`).
     #[inline]
-    fn insert_directional(&self, leaf: usize, square: Vec2, w: (f64, f64)) {
-        let tree = &self.trees[leaf].recording;
-        match self.config.directional_filter {
-            DirectionalFilter::Nearest => tree.record(square, w),
-            DirectionalFilter::Box => tree.record_box(square, w),
-            DirectionalFilter::DeferredBox => tree.record_deferred(square, w),
-        }
-    }
-
-    /// Like [`insert_directional`](Self::insert_directional), without counting a sample.
-    fn insert_directional_sums(&self, leaf: usize, square: Vec2, w: (f64, f64)) {
-        let tree = &self.trees[leaf].recording;
-        match self.config.directional_filter {
-            DirectionalFilter::Nearest => tree.record_sums(square, w),
-            DirectionalFilter::Box => tree.record_box_sums(square, w),
-            DirectionalFilter::DeferredBox => tree.record_deferred_sums(square, w),
-        }
+    fn insert_directional(&self, leaf: usize, square: Vec2, w: (f64, f64), counted: bool) {
+        self.trees[leaf]
+            .recording
+            .record(self.config.directional_filter, square, w, counted);
     }
 
     /// The directional distribution to sample at `position`. Positions outside the bounds get
@@ -292,13 +290,10 @@ impl GuidingField {
             ..FieldStats::default()
         };
         for t in &self.trees {
-            let cells = t.sampling.leaves();
+            let (leaves, depth) = t.sampling.leaf_count_and_depth();
             s.directional_nodes += t.sampling.node_count() as u64;
-            s.directional_leaves += cells.len() as u64;
-            s.directional_depth = cells
-                .iter()
-                .map(|(c, _)| c.depth)
-                .fold(s.directional_depth, u32::max);
+            s.directional_leaves += leaves as u64;
+            s.directional_depth = s.directional_depth.max(depth);
             s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
         }
         s.samples_recorded_total = self.recorded_before.saturating_add(s.samples_recorded);
@@ -376,7 +371,8 @@ impl<'a> SpatialCell<'a> {
     }
 
     /// The leaves of the current iteration's recording topology and their moments. Under
-    /// [`DirectionalFilter::DeferredBox`] the sums still pending are spread first, so the moments
+    /// [`DirectionalFilter::DeferredBox`](crate::DirectionalFilter::DeferredBox) the sums still
+    /// pending are spread first, so the moments
     /// hold every recorded sample's filtered share.
     pub fn recorded(&self) -> Vec<(DirectionalCell, Moments)> {
         self.tree.recording.leaves()
@@ -431,7 +427,7 @@ impl DirectionalDistribution<'_> {
 
     /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
     /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and 0.95 (see
-    /// [`selection`](crate::selection)); ½ until the cell has learned it from samples recorded
+    /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from samples recorded
     /// with [`Sample::with_mixture`].
     #[inline]
     pub fn guide_probability(&self) -> f32 {

@@ -2,9 +2,9 @@
 //! quadrant sums that render threads add to with atomic operations. `record` descends it to
 //! the sample's leaf; the box filter's shares are in `splat`.
 
-use super::{DirectionalCell, LEAF_BIT, cell_area, fixed, quadrant_bits};
-use crate::Moments;
+use super::{DirectionalCell, LEAF_BIT, fixed, quadrant_bits};
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
+use crate::{DirectionalFilter, Moments};
 use glam::Vec2;
 
 /// A child slot of a recording node under construction that will become a leaf.
@@ -55,7 +55,8 @@ impl RecordingTree {
         tree
     }
 
-    /// Gives every leaf pending sums, so that [`record_deferred`](Self::record_deferred) defers.
+    /// Gives every leaf pending sums, so that [`record`](Self::record) defers under
+    /// [`DirectionalFilter::DeferredBox`].
     pub(crate) fn defer(&mut self) {
         if self.pending.is_empty() {
             self.pending = (0..self.moments.len())
@@ -103,25 +104,39 @@ impl RecordingTree {
         self.moments[k].touch() ^ self.quadrants[k].touch(q)
     }
 
-    /// The moments slot of the leaf that holds `s`, and the leaf's side.
+    /// Records weights `(v/p, v²/p)` at `s` through the directional `filter`: the one entry
+    /// point of recording. `counted` is whether this is a sample's own record, which counts the
+    /// sample (and its second moment in the quadrant of its leaf it landed in); a spatial filter
+    /// that spreads one sample over several spatial leaves records its other shares uncounted.
+    /// Under [`DirectionalFilter::DeferredBox`] the sums wait in the leaf quadrant's pending
+    /// sums for [`flush_pending`](Self::flush_pending) to spread; a tree without pending sums
+    /// spreads them at once, as the box filter does.
     #[inline]
-    fn leaf_of(&self, s: Vec2) -> (usize, f64) {
-        let (k, depth, _) = self.locate(s);
-        (k, cell_area(depth).sqrt())
-    }
-
-    /// Adds one sample of weights `(v/p, v²/p)` to the leaf that holds `s`.
-    #[inline]
-    pub(crate) fn record(&self, s: Vec2, weights: (f64, f64)) {
-        let (k, _, q) = self.locate(s);
-        self.moments[k].add(weights);
-        self.quadrants[k].add(q, weights.1);
-    }
-
-    /// Adds weights to the leaf that holds `s` without counting a sample.
-    #[inline]
-    pub(crate) fn record_sums(&self, s: Vec2, weights: (f64, f64)) {
-        self.moments[self.leaf_of(s).0].add_sums(weights);
+    pub(crate) fn record(
+        &self,
+        filter: DirectionalFilter,
+        s: Vec2,
+        weights: (f64, f64),
+        counted: bool,
+    ) {
+        match filter {
+            DirectionalFilter::Box => self.record_box(s, weights, counted),
+            DirectionalFilter::DeferredBox if self.pending.is_empty() => {
+                self.record_box(s, weights, counted)
+            }
+            DirectionalFilter::Nearest | DirectionalFilter::DeferredBox => {
+                let (k, _, q) = self.locate(s);
+                if counted {
+                    self.moments[k].add_count();
+                    self.quadrants[k].add(q, weights.1);
+                }
+                if filter == DirectionalFilter::Nearest {
+                    self.moments[k].add_sums(weights);
+                } else {
+                    self.pending[k].add(q, weights);
+                }
+            }
+        }
     }
 
     /// Counts a sample in the leaf that holds `s`, and its second-moment weight `w2` in the
@@ -131,31 +146,6 @@ impl RecordingTree {
         let (k, _, q) = self.locate(s);
         self.moments[k].add_count();
         self.quadrants[k].add(q, w2);
-    }
-
-    /// Counts the sample where it landed, and adds its weights to the pending sums of the
-    /// leaf's quadrant that holds `s`, for [`flush_pending`](Self::flush_pending) to spread
-    /// (the deferred box filter). Without pending sums it spreads them at once, as
-    /// [`record_box`](Self::record_box) does.
-    #[inline]
-    pub(crate) fn record_deferred(&self, s: Vec2, weights: (f64, f64)) {
-        if self.pending.is_empty() {
-            return self.record_box(s, weights);
-        }
-        let (k, _, q) = self.locate(s);
-        self.moments[k].add_count();
-        self.quadrants[k].add(q, weights.1);
-        self.pending[k].add(q, weights);
-    }
-
-    /// [`record_deferred`](Self::record_deferred) without counting a sample.
-    #[inline]
-    pub(crate) fn record_deferred_sums(&self, s: Vec2, weights: (f64, f64)) {
-        if self.pending.is_empty() {
-            return self.record_box_sums(s, weights);
-        }
-        let (k, _, q) = self.locate(s);
-        self.pending[k].add(q, weights);
     }
 
     /// The moments slot of the leaf that holds the fixed-point point `p`, descending from
