@@ -195,22 +195,52 @@ impl SpatialTree {
     }
 
     /// Recomputes the lookup grid: where the descent of each grid cell stands after
-    /// `3·GRID_BITS` levels.
+    /// `3·GRID_BITS` levels. One walk down the tree's top levels: a node that is a leaf above
+    /// the grid's depth fills the block of cells it covers at once.
     fn build_grid(&mut self) {
-        let n = 1u32 << GRID_BITS;
-        for i in 0..self.grid.len() as u32 {
-            let g = [i % n, (i / n) % n, i / (n * n)];
-            let c = g.map(|v| v << (FIXED_BITS - GRID_BITS));
-            let mut node = self.nodes[0];
-            for depth in 0..3 * GRID_BITS {
-                if node & LEAF_BIT != 0 {
-                    break;
+        let n = 1usize << GRID_BITS;
+        // (node entry, depth, the block's lowest cell and its extent in cells per axis)
+        let mut stack = vec![(self.nodes[0], 0u32, [0usize; 3], [n; 3])];
+        while let Some((node, depth, lo, size)) = stack.pop() {
+            if node & LEAF_BIT != 0 || depth == 3 * GRID_BITS {
+                for z in lo[2]..lo[2] + size[2] {
+                    for y in lo[1]..lo[1] + size[1] {
+                        let row = (z * n + y) * n;
+                        self.grid[row + lo[0]..row + lo[0] + size[0]].fill(node);
+                    }
                 }
-                let bit = (c[(depth % 3) as usize] >> (FIXED_BITS - 1 - depth / 3)) & 1;
-                node = self.nodes[(node + bit) as usize];
+                continue;
             }
-            self.grid[i as usize] = node;
+            // Depth d splits axis d % 3 at the next bit: the low half is child 0.
+            let axis = (depth % 3) as usize;
+            let mut half = size;
+            half[axis] /= 2;
+            let mut high = lo;
+            high[axis] += half[axis];
+            stack.push((self.nodes[node as usize], depth + 1, lo, half));
+            stack.push((self.nodes[node as usize + 1], depth + 1, high, half));
         }
+    }
+
+    /// The grid as the descent of each cell, one by one: what `build_grid` must equal.
+    #[cfg(test)]
+    fn grid_by_cells(&self) -> Vec<u32> {
+        let n = 1u32 << GRID_BITS;
+        (0..self.grid.len() as u32)
+            .map(|i| {
+                let g = [i % n, (i / n) % n, i / (n * n)];
+                let c = g.map(|v| v << (FIXED_BITS - GRID_BITS));
+                let mut node = self.nodes[0];
+                for depth in 0..3 * GRID_BITS {
+                    if node & LEAF_BIT != 0 {
+                        break;
+                    }
+                    let bit = (c[(depth % 3) as usize] >> (FIXED_BITS - 1 - depth / 3)) & 1;
+                    node = self.nodes[(node + bit) as usize];
+                }
+                node
+            })
+            .collect()
     }
 
     /// Splits busy leaves: a leaf with `count > threshold` samples splits in two, each child
@@ -368,6 +398,10 @@ mod tests {
         }
         let depths: Vec<u32> = t.leaves().iter().map(|l| l.depth).collect();
         assert!(depths.iter().any(|&d| d < 12) && depths.iter().any(|&d| d > 12));
+        // The grid, built by one walk of the top levels, is each cell's own descent.
+        assert_eq!(&*t.grid, t.grid_by_cells().as_slice());
+        let single = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
+        assert_eq!(&*single.grid, single.grid_by_cells().as_slice());
     }
 
     #[test]

@@ -225,6 +225,25 @@ impl SamplingTree {
         out
     }
 
+    /// The number of leaves and the deepest leaf's depth: what [`leaves`](Self::leaves) would
+    /// list, counted without listing (statistics need no masses).
+    pub(crate) fn leaf_count_and_depth(&self) -> (usize, u32) {
+        let (mut count, mut deepest) = (0, 0);
+        let mut stack = vec![(0usize, 0u32)];
+        while let Some((node, depth)) = stack.pop() {
+            for &child in &self.nodes[node].child {
+                match child {
+                    NO_CHILD => {
+                        count += 1;
+                        deepest = deepest.max(depth + 1);
+                    }
+                    c => stack.push((usize::from(c), depth + 1)),
+                }
+            }
+        }
+        (count, deepest)
+    }
+
     pub(crate) fn node_count(&self) -> usize {
         self.nodes.len()
     }
@@ -238,6 +257,21 @@ impl SamplingTree {
 mod tests {
     use super::*;
     use crate::quadtree::testing::{random_sampling_tree, uniform};
+
+    #[test]
+    fn leaf_count_and_depth_match_the_listed_leaves() {
+        for seed in 0..20 {
+            let tree = random_sampling_tree(seed);
+            let leaves = tree.leaves();
+            let deepest = leaves.iter().map(|(c, _)| c.depth).max().unwrap();
+            assert_eq!(
+                tree.leaf_count_and_depth(),
+                (leaves.len(), deepest),
+                "seed {seed}"
+            );
+        }
+        assert_eq!(SamplingTree::uniform().leaf_count_and_depth(), (4, 1));
+    }
 
     #[test]
     fn sampling_by_cuts_is_the_descent_that_cuts_level_by_level() {
