@@ -62,7 +62,13 @@ pub fn field_ops(data: &[u8]) {
                 };
                 // The high bit of `n` adds mixture terms (integrand v, BSDF pdf `pdf`, guide pdf
                 // `v`): arbitrary values for the guide-selection sums.
-                let mut sample = Sample::new(p, d, v, pdf);
+                let mut sample = Sample {
+                    position: p,
+                    direction: d,
+                    value: v,
+                    pdf,
+                    ..Sample::default()
+                };
                 if n & 0x80 != 0 {
                     sample = sample.with_mixture(v, pdf, v.abs());
                 }
@@ -80,7 +86,13 @@ pub fn field_ops(data: &[u8]) {
                     break;
                 };
                 let (d, pdf) = check_query(&field, x, u);
-                field.record(&Sample::new(x, d, v, pdf));
+                field.record(&Sample {
+                    position: x,
+                    direction: d,
+                    value: v,
+                    pdf,
+                    ..Sample::default()
+                });
             }
             4 if round_trips < MAX_ROUND_TRIPS => {
                 round_trips += 1;

@@ -64,8 +64,8 @@ pub struct GuidingConfig {
     /// `w · own + (1 − w) · parent's / 4` with `w = n/(n + n0)`, top-down, so a sparsely
     /// sampled leaf borrows from its siblings instead of trusting a few heavy-tailed values (a
     /// leaf whose mass is underestimated costs variance without bound). 0 turns the masses'
-    /// shrinkage off. Refinement by variance gain shrinks its own estimates with
-    /// [`SPLIT_PRIOR_SAMPLES`](crate::refinement::SPLIT_PRIOR_SAMPLES), whatever this is.
+    /// shrinkage off. Refinement by variance gain shrinks its split estimates with a fixed
+    /// `n0` of its own (2), whatever this is.
     /// Must be finite and ≥ 0.
     pub prior_samples: f32,
     /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`], chosen
@@ -98,6 +98,10 @@ impl Default for GuidingConfig {
 
 impl GuidingConfig {
     /// Checks every field against its documented range.
+    ///
+    /// # Errors
+    ///
+    /// A [`ConfigError`] naming the first field out of its documented range.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let check = |ok: bool, field: &'static str, value: String, requirement: &'static str| {
             if ok {

@@ -35,6 +35,7 @@ use serde::{Deserialize, Serialize};
 
 /// How a sample is spread over spatial leaves (see the [module](self) notes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
 pub enum SpatialFilter {
     /// Only the leaf containing the position.
     #[default]
@@ -47,6 +48,7 @@ pub enum SpatialFilter {
 
 /// How a sample is spread over directional leaves (see the [module](self) notes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
 pub enum DirectionalFilter {
     /// Only the leaf containing the direction.
     Nearest,

@@ -20,7 +20,7 @@
 //! [`refine`](crate::GuidingField::refine) takes the step, clamped between
 //! [`MIN_GUIDE_PROBABILITY`] and [`MAX_GUIDE_PROBABILITY`] (0.05 and 0.95): the defensive floor that keeps
 //! the BSDF (which may be the only technique covering a direction the guide has not learned)
-//! and the guide always in play. A leaf with fewer than [`MIN_SELECTION_SAMPLES`] mixture
+//! and the guide always in play. A leaf with fewer than `MIN_SELECTION_SAMPLES` (32) mixture
 //! samples in an iteration keeps its probability; a new leaf starts at ½ (children after a
 //! spatial split start from their parent's).
 
@@ -34,7 +34,7 @@ pub const MAX_GUIDE_PROBABILITY: f32 = 0.95;
 /// The guide probability of a leaf that has learned nothing yet.
 pub const INITIAL_GUIDE_PROBABILITY: f32 = 0.5;
 /// Mixture samples a leaf needs in an iteration before it takes a Newton step.
-pub const MIN_SELECTION_SAMPLES: u64 = 32;
+pub(crate) const MIN_SELECTION_SAMPLES: u64 = 32;
 
 /// A spatial leaf's guide probability and the sums of the current iteration.
 #[derive(Debug)]

@@ -35,7 +35,8 @@
 //!     let (direction, pdf) = dist.sample(Vec2::new(0.25, 0.75));
 //!     // ...trace, and once the path is done, record what arrived from there.
 //!     let radiance = 1.0;
-//!     field.record(&Sample::new(Vec3::new(0.2, 0.5, 0.5), direction, radiance, pdf));
+//!     let position = Vec3::new(0.2, 0.5, 0.5);
+//!     field.record(&Sample { position, direction, value: radiance, pdf, ..Sample::default() });
 //!     // Between passes: learn.
 //!     field.refine();
 //! }
@@ -59,7 +60,7 @@
 //! - [`filter`]: spreading a recorded sample over neighbouring cells (splatting).
 //! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
-//! - [`selection`]: the per-cell probability of sampling the guide rather than the BSDF.
+//! - [`guide_probability`]: the per-cell probability of sampling the guide rather than the BSDF.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
 //!
@@ -74,6 +75,7 @@ mod cache;
 mod config;
 mod field;
 pub mod filter;
+pub mod guide_probability;
 mod merge;
 pub mod mixture;
 mod moments;
@@ -81,10 +83,12 @@ mod quadtree;
 pub mod refinement;
 mod rule;
 mod sample;
-pub mod selection;
 mod spatial;
 pub mod sphere;
 mod stats;
+
+/// The vector types of the API (`Vec2`, `Vec3`), from the glam version sdguide is built with.
+pub use glam;
 
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};

@@ -59,12 +59,18 @@ impl GuidingField {
     /// use glam::Vec3;
     /// let base = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), GuidingConfig::default())?;
     /// let (mut a, b) = (base.clone(), base.clone());
-    /// a.record(&Sample::new(Vec3::splat(0.5), Vec3::Z, 1.0, 1.0));
-    /// b.record(&Sample::new(Vec3::splat(0.5), Vec3::X, 2.0, 1.0));
+    /// a.record(&Sample { position: Vec3::splat(0.5), direction: Vec3::Z, value: 1.0, pdf: 1.0, ..Sample::default() });
+    /// b.record(&Sample { position: Vec3::splat(0.5), direction: Vec3::X, value: 2.0, pdf: 1.0, ..Sample::default() });
     /// a.merge(&b)?;
     /// assert_eq!(a.stats().samples_recorded, 2);
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
+    ///
+    /// # Errors
+    ///
+    /// A [`MergeError`] when `other` did not start the iteration from the same cache
+    /// (different configuration, bounds, iteration or trees); nothing `self` reports or saves
+    /// changes then.
     pub fn merge(&mut self, other: &GuidingField) -> Result<(), MergeError> {
         if self.config != other.config {
             return Err(MergeError::ConfigDiffers);

@@ -50,6 +50,10 @@ impl Selection {
     /// A selection among `techniques` techniques (at least 1), each kept at probability
     /// `floor` or more; `floor` must be in `(0, 1/techniques]` (at `1/techniques` the
     /// selection is uniform).
+    ///
+    /// # Errors
+    ///
+    /// A [`ConfigError`] when `techniques` is 0 or `floor` is out of range.
     pub fn new(techniques: usize, floor: f64) -> Result<Self, ConfigError> {
         if techniques == 0 {
             return Err(ConfigError {
@@ -75,6 +79,11 @@ impl Selection {
     /// the selection factor `1/α̃_i`). Any number of threads may record at once. A negative or
     /// non-finite weight, or a technique index out of range, is rejected (`BadValue`) and not
     /// recorded.
+    ///
+    /// # Errors
+    ///
+    /// A [`RejectReason`] when the weight is negative or not finite, or the technique
+    /// index is out of range; nothing is recorded then.
     pub fn record(&self, technique: usize, weight: f32) -> Result<(), RejectReason> {
         if !(weight >= 0.0 && weight.is_finite()) {
             return Err(RejectReason::BadValue);

@@ -3,7 +3,8 @@
 //!
 //! The l2 rule gives the best density on a fixed partition; the partition decides more. On a
 //! partition into cells `C_i` with second moments `m_i = |C_i|·∫_{C_i} v²`, the best
-//! piecewise-constant density has relative second moment `(Σ_i sqrt(m_i))²/μ²` (design §3). So
+//! piecewise-constant density has relative second moment `(Σ_i sqrt(m_i))²/μ²` (Pantaleoni &
+//! Heitz, eqs. 14–18: put eq. 18's optimal `α_i` into eq. 14). So
 //! replacing leaf `i` by its four quadrants lowers `Σ sqrt(m)` by
 //!
 //! ```text
@@ -22,21 +23,20 @@
 //! gain ½), and a few hundred samples of a sharp, moving lobe still scatter the relative gain by
 //! ±0.1–0.3 (measured against quadrature in the quality harness). Three guards: each quadrant's
 //! sum is shrunk toward a quarter of the leaf's by `n_q/(n_q + n0)`, `n0 =`
-//! [`SPLIT_PRIOR_SAMPLES`], as every cell's second-moment sum is toward a quarter of its
+//! `SPLIT_PRIOR_SAMPLES`, as every cell's second-moment sum is toward a quarter of its
 //! parent's (the way leaf masses are, with their own `prior_samples`); and the leaf's relative
 //! gain is shrunk toward its parent's — measured one level up, on four times the samples — by
-//! `n/(n + N_g)`, `N_g =` [`GAIN_PRIOR_SAMPLES`]. A sparse leaf thus splits as well as its
+//! `n/(n + N_g)`, `N_g =` `GAIN_PRIOR_SAMPLES`. A sparse leaf thus splits as well as its
 //! parent did (flat light stays flat, a lobe keeps being refined), and its own evidence takes
-//! over as it accumulates. And a cell splits only when it saw at least [`MIN_SPLIT_SAMPLES`]
-//! samples. All three were added, and their constants picked, by the harness's numbers
-//! (`docs/quality.md`).
+//! over as it accumulates. And a cell splits only when it saw at least `MIN_SPLIT_SAMPLES`
+//! samples. The constants are the quality harness's choice (`docs/quality.md`).
 //!
 //! **Below the recorded leaves.** The gain of a quadrant's own split is not recorded (that would
 //! take sixteen more sums). It is predicted: a quadrant of a leaf with relative gain `g/sqrt(m)`
 //! is assumed to split as well as its parent did, `gain_q = sqrt(m_q)·g/sqrt(m)` — exact for a
 //! point light, zero for flat light — so one refine can go two levels below the old leaves. The
 //! next iteration measures the prediction, and collapses a split that did not pay. A quadrant's
-//! split is predicted only when it saw at least [`MIN_PREDICTED_SPLIT_SAMPLES`] samples: its
+//! split is predicted only when it saw at least `MIN_PREDICTED_SPLIT_SAMPLES` samples: its
 //! quadrants would be seen by too few samples to estimate otherwise.
 
 use crate::moments::Quadrants;
@@ -50,6 +50,7 @@ use serde::{Deserialize, Serialize};
 /// assert!(config.validate().is_ok());
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
 pub enum Refinement {
     /// The SD-tree's rule: split a cell while its share of the tree's mass exceeds
     /// [`subdivision_threshold`](crate::GuidingConfig::subdivision_threshold) `ρ`; collapse it
@@ -63,38 +64,29 @@ pub enum Refinement {
 }
 
 /// Samples a cell of the ended iteration must have seen to split by variance gain (for a split
-/// below the recorded leaves, see [`MIN_PREDICTED_SPLIT_SAMPLES`]). A finer partition than the
-/// samples can support costs more in badly estimated masses than its gain saves: without this
-/// guard, at a small budget the noisy sharp lobe of the quality harness over-split to 2.6× flux
-/// share's variance. Chosen with the harness (`docs/quality.md`).
-pub const MIN_SPLIT_SAMPLES: u64 = 64;
+/// below the recorded leaves, `MIN_PREDICTED_SPLIT_SAMPLES`). A finer partition than the
+/// samples can support costs more in badly estimated masses than its gain saves.
+pub(crate) const MIN_SPLIT_SAMPLES: u64 = 64;
 
 /// Samples a quadrant of a leaf must have seen (in the ended iteration) for its own split to be
 /// predicted (see "Below the recorded leaves" in the module documentation). A predicted split
 /// makes cells two levels below the recorded leaf, each of which the next iteration sees with a
-/// sixteenth of the leaf's samples, or fewer: on noisy light, where one sample in ten carries
-/// the light, some of them see none of it, and the l2 rule gives them a small share of a mass
-/// they hold. With 64, as for recorded splits, the quality harness's noisy sharp lobe was 1.38×
-/// its oracle; with 512 (and the default `gain_threshold` lowered from 0.0015 to 0.0007, which
-/// spends the nodes this saves where the light is smooth) every field of the harness has a
-/// lower variance, by 0.4–15%, and the trees hold as many leaves on average as flux share's
-/// (`docs/quality.md`).
-pub const MIN_PREDICTED_SPLIT_SAMPLES: u64 = 512;
+/// sixteenth of the leaf's samples or fewer: on noisy light, where few samples carry the light,
+/// some would see none of it, and the l2 rule would give them a small share of a mass they
+/// hold. The default `gain_threshold` spends the nodes this saves where the light is smooth.
+pub(crate) const MIN_PREDICTED_SPLIT_SAMPLES: u64 = 512;
 
 /// `n0` of the gain estimates: how many samples' worth of weight a cell's second-moment sum
 /// gives a quarter of its parent's, and a quadrant's sum a quarter of its leaf's, when
 /// refinement by variance gain estimates what a split would gain (see the module
-/// documentation). Leaf masses shrink with the field's own
-/// [`prior_samples`](crate::GuidingConfig::prior_samples), which is smaller: the two were one
-/// knob at 2 until the quality harness showed masses doing better with less shrinkage (lower
-/// variance on three light fields, level on the fourth) while the split decisions still need
-/// this much (`docs/quality.md`, "Less shrinkage for the masses than for the splits").
-pub const SPLIT_PRIOR_SAMPLES: f64 = 2.0;
+/// documentation). Larger than the leaf masses' own
+/// [`prior_samples`](crate::GuidingConfig::prior_samples): a split decision rests on the
+/// difference of square roots of noisy sums, which needs more shrinkage than a mass does.
+pub(crate) const SPLIT_PRIOR_SAMPLES: f64 = 2.0;
 
 /// `N_g`: how many samples' worth of weight a leaf's relative gain gives its parent's (see the
-/// module documentation). Picked with the quality harness from 200 and 1000: at the default
-/// thresholds 1000 is ahead on every field (by 1–12%); at equal node counts they are within 2%.
-pub const GAIN_PRIOR_SAMPLES: f64 = 1000.0;
+/// module documentation).
+pub(crate) const GAIN_PRIOR_SAMPLES: f64 = 1000.0;
 
 /// What a leaf's quadrant sums say about splitting it.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 /// assert_eq!(LeafRule::L2.mass(0.25, 2.0, 16.0), 2.0); // sqrt(0.25 · 16)
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
 pub enum LeafRule {
     /// Mass ∝ the cell's mean contribution `S1` (the classic SD-tree rule).
     L1,

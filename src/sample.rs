@@ -9,14 +9,25 @@ use serde::{Deserialize, Serialize};
 /// `pdf` must be the density the direction was *actually* drawn with — the full mixture pdf of
 /// BSDF sampling and guiding — since the field weights every sample by `1/pdf`.
 ///
+/// A sample is built with named fields, so that the value and the pdf, both `f32`, cannot be
+/// swapped; the rest come from [`Default`]. A default sample has a zero direction and pdf, and
+/// a field rejects (and counts) it: a forgotten field cannot pass for data.
+///
 /// ```
 /// use sdguide::Sample;
-/// use glam::{Vec2, Vec3};
-/// let s = Sample::new(Vec3::new(0.5, 0.2, 0.1), Vec3::Z, 3.0, 0.25);
+/// use sdguide::glam::Vec3;
+/// let s = Sample {
+///     position: Vec3::new(0.5, 0.2, 0.1),
+///     direction: Vec3::Z,
+///     value: 3.0,
+///     pdf: 0.25,
+///     ..Sample::default()
+/// };
 /// assert!(s.check().is_ok());
-/// assert!(Sample::new(Vec3::ZERO, Vec3::Z, f32::NAN, 0.25).check().is_err());
+/// assert!(Sample { value: f32::NAN, ..s }.check().is_err());
+/// assert!(Sample::default().check().is_err());
 /// ```
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Sample {
     /// Where the light arrived (world space).
     pub position: Vec3,
@@ -31,7 +42,7 @@ pub struct Sample {
     /// sample, so recording is deterministic either way. Out-of-range values are clamped.
     pub jitter: Option<Vec3>,
     /// What the guide-vs-BSDF selection learns from, when the direction was drawn from the
-    /// one-sample mixture of BSDF sampling and guiding (see [`selection`](crate::selection)).
+    /// one-sample mixture of BSDF sampling and guiding (see [`guide_probability`](crate::guide_probability)).
     pub mixture: Option<MixtureTerms>,
 }
 
@@ -48,18 +59,6 @@ pub struct MixtureTerms {
 }
 
 impl Sample {
-    /// A sample from its four parts.
-    pub const fn new(position: Vec3, direction: Vec3, value: f32, pdf: f32) -> Self {
-        Self {
-            position,
-            direction,
-            value,
-            pdf,
-            jitter: None,
-            mixture: None,
-        }
-    }
-
     /// The sample with its mixture terms: the integrand `L·f_s·|cos θ|`, and the BSDF's and
     /// the guide's pdfs of the direction. `pdf` stays the mixture pdf it was drawn with.
     ///
@@ -74,7 +73,8 @@ impl Sample {
     /// let bsdf_pdf = 0.1; // the BSDF's pdf of `d`
     /// let (radiance, bsdf_cos) = (2.0, 0.05);
     /// let q = a * guide_pdf + (1.0 - a) * bsdf_pdf;
-    /// let sample = Sample::new(x, d, radiance, q).with_mixture(radiance * bsdf_cos, bsdf_pdf, guide_pdf);
+    /// let sample = Sample { position: x, direction: d, value: radiance, pdf: q, ..Sample::default() }
+    ///     .with_mixture(radiance * bsdf_cos, bsdf_pdf, guide_pdf);
     /// assert!(field.try_record(&sample).is_ok());
     /// # Ok::<(), sdguide::ConfigError>(())
     /// ```
@@ -94,7 +94,8 @@ impl Sample {
     /// use glam::Vec3;
     /// let config = GuidingConfig { spatial_filter: SpatialFilter::Stochastic, ..Default::default() };
     /// let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config)?;
-    /// let s = Sample::new(Vec3::splat(0.5), Vec3::Z, 1.0, 0.5).with_jitter(Vec3::new(0.1, 0.7, 0.4));
+    /// let s = Sample { position: Vec3::splat(0.5), direction: Vec3::Z, value: 1.0, pdf: 0.5, ..Sample::default() }
+    ///     .with_jitter(Vec3::new(0.1, 0.7, 0.4));
     /// field.record(&s);
     /// assert_eq!(field.stats().samples_recorded, 1);
     /// # Ok::<(), sdguide::ConfigError>(())
@@ -106,6 +107,10 @@ impl Sample {
 
     /// Checks the sample and returns its direction's point on the unit square (see
     /// [`sphere`](crate::sphere)), or why the field rejects it.
+    ///
+    /// # Errors
+    ///
+    /// The [`RejectReason`] of the first check the sample fails.
     #[inline]
     pub fn check(&self) -> Result<Vec2, RejectReason> {
         if !self.position.is_finite() {
@@ -134,6 +139,7 @@ impl Sample {
 /// value and the pdf). Each reason has its own counter in
 /// [`FieldStats::rejected`](crate::FieldStats::rejected).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub enum RejectReason {
     /// A position coordinate was NaN or infinite.
     NonFinitePosition,

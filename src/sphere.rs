@@ -25,8 +25,8 @@
 //! leaves, each seen by few samples. On the quality harness the cylindrical map's worst cells
 //! were exactly those where a sharp lobe crosses the pole, and their leaves got 3–30% of their
 //! optimal probability. The octahedral map has no such line: every cell of the quadtree is a
-//! compact patch of the sphere, distorted by a bounded factor. Switching lowered the harness's
-//! L2 relvar by 8–19% on every field (`docs/quality.md`).
+//! compact patch of the sphere, distorted by a bounded factor: on the harness its L2 relvar is
+//! 8–19% below the cylindrical map's on every field (`docs/experiments/004-*`).
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_PI_4, PI};

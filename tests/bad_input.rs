@@ -21,53 +21,198 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
     let bad = [
         // (sample, which counter)
         (
-            Sample::new(Vec3::new(NAN, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
+            Sample {
+                position: Vec3::new(NAN, 0.5, 0.5),
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "position",
         ),
         (
-            Sample::new(Vec3::new(0.5, INF, 0.5), Vec3::Z, 1.0, 1.0),
+            Sample {
+                position: Vec3::new(0.5, INF, 0.5),
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "position",
         ),
         (
-            Sample::new(Vec3::new(0.5, 0.5, 1.5), Vec3::Z, 1.0, 1.0),
+            Sample {
+                position: Vec3::new(0.5, 0.5, 1.5),
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "bounds",
         ),
         (
-            Sample::new(Vec3::new(-0.01, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
+            Sample {
+                position: Vec3::new(-0.01, 0.5, 0.5),
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "bounds",
         ),
-        (Sample::new(p, Vec3::ZERO, 1.0, 1.0), "direction"),
         (
-            Sample::new(p, Vec3::new(NAN, 0.0, 1.0), 1.0, 1.0),
+            Sample {
+                position: p,
+                direction: Vec3::ZERO,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "direction",
         ),
         (
-            Sample::new(p, Vec3::new(INF, 0.0, 1.0), 1.0, 1.0),
+            Sample {
+                position: p,
+                direction: Vec3::new(NAN, 0.0, 1.0),
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "direction",
         ),
-        (Sample::new(p, Vec3::Z, NAN, 1.0), "value"),
-        (Sample::new(p, Vec3::Z, INF, 1.0), "value"),
-        (Sample::new(p, Vec3::Z, -1.0, 1.0), "value"),
-        (Sample::new(p, Vec3::Z, 1.0, 0.0), "pdf"),
-        (Sample::new(p, Vec3::Z, 1.0, -0.0), "pdf"),
-        (Sample::new(p, Vec3::Z, 1.0, -2.0), "pdf"),
-        (Sample::new(p, Vec3::Z, 1.0, NAN), "pdf"),
-        (Sample::new(p, Vec3::Z, 1.0, INF), "pdf"),
-        // Mixture terms are checked like the value and the pdf.
         (
-            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(NAN, 1.0, 1.0),
+            Sample {
+                position: p,
+                direction: Vec3::new(INF, 0.0, 1.0),
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
+            "direction",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: NAN,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "value",
         ),
         (
-            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(-1.0, 1.0, 1.0),
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: INF,
+                pdf: 1.0,
+                ..Sample::default()
+            },
             "value",
         ),
         (
-            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, -1.0, 1.0),
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: -1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            },
+            "value",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 0.0,
+                ..Sample::default()
+            },
             "pdf",
         ),
         (
-            Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, 1.0, INF),
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: -0.0,
+                ..Sample::default()
+            },
+            "pdf",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: -2.0,
+                ..Sample::default()
+            },
+            "pdf",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: NAN,
+                ..Sample::default()
+            },
+            "pdf",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: INF,
+                ..Sample::default()
+            },
+            "pdf",
+        ),
+        // Mixture terms are checked like the value and the pdf.
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            }
+            .with_mixture(NAN, 1.0, 1.0),
+            "value",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            }
+            .with_mixture(-1.0, 1.0, 1.0),
+            "value",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            }
+            .with_mixture(1.0, -1.0, 1.0),
+            "pdf",
+        ),
+        (
+            Sample {
+                position: p,
+                direction: Vec3::Z,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            }
+            .with_mixture(1.0, 1.0, INF),
             "pdf",
         ),
     ];
@@ -85,15 +230,65 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
     // Extreme but valid samples are accepted: a subnormal pdf, a huge value, a point just
     // outside the bounds (within the tolerance), an unnormalized direction.
     let good = [
-        Sample::new(p, Vec3::Z, f32::MAX, f32::from_bits(1)),
-        Sample::new(p, Vec3::Z, 0.0, 1.0),
-        Sample::new(Vec3::new(1.0005, 0.5, 0.5), Vec3::Z, 1.0, 1.0),
-        Sample::new(p, Vec3::new(0.0, 3.0, 4.0), 1.0, 1.0),
-        Sample::new(p, Vec3::splat(f32::MAX), 1.0, 1.0),
-        Sample::new(p, Vec3::new(0.0, 1e-30, -1e-30), 1.0, 1.0),
+        Sample {
+            position: p,
+            direction: Vec3::Z,
+            value: f32::MAX,
+            pdf: f32::from_bits(1),
+            ..Sample::default()
+        },
+        Sample {
+            position: p,
+            direction: Vec3::Z,
+            value: 0.0,
+            pdf: 1.0,
+            ..Sample::default()
+        },
+        Sample {
+            position: Vec3::new(1.0005, 0.5, 0.5),
+            direction: Vec3::Z,
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        },
+        Sample {
+            position: p,
+            direction: Vec3::new(0.0, 3.0, 4.0),
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        },
+        Sample {
+            position: p,
+            direction: Vec3::splat(f32::MAX),
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        },
+        Sample {
+            position: p,
+            direction: Vec3::new(0.0, 1e-30, -1e-30),
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        },
         // Mixture terms at their extremes: a zero BSDF pdf, huge values, a subnormal mixture pdf.
-        Sample::new(p, Vec3::Z, 1.0, 1.0).with_mixture(1.0, 0.0, 1.0),
-        Sample::new(p, Vec3::Z, f32::MAX, f32::from_bits(1)).with_mixture(f32::MAX, f32::MAX, 0.0),
+        Sample {
+            position: p,
+            direction: Vec3::Z,
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        }
+        .with_mixture(1.0, 0.0, 1.0),
+        Sample {
+            position: p,
+            direction: Vec3::Z,
+            value: f32::MAX,
+            pdf: f32::from_bits(1),
+            ..Sample::default()
+        }
+        .with_mixture(f32::MAX, f32::MAX, 0.0),
     ];
     field.record_all(&good);
     let stats = field.stats();
@@ -155,7 +350,13 @@ fn any_jitter_is_recorded_into_a_valid_cell() {
         ..GuidingConfig::default()
     };
     let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config).unwrap();
-    let s = Sample::new(Vec3::splat(0.5), Vec3::Z, 1.0, 1.0);
+    let s = Sample {
+        position: Vec3::splat(0.5),
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    };
     let jitters = [
         Vec3::splat(NAN),
         Vec3::splat(INF),
@@ -324,7 +525,15 @@ fn every_corner_of_accepted_bounds_is_recorded() {
                 pick(2, bounds.min.z, bounds.max.z),
             );
             assert!(
-                field.try_record(&Sample::new(p, Vec3::Z, 1.0, 1.0)).is_ok(),
+                field
+                    .try_record(&Sample {
+                        position: p,
+                        direction: Vec3::Z,
+                        value: 1.0,
+                        pdf: 1.0,
+                        ..Sample::default()
+                    })
+                    .is_ok(),
                 "{bounds:?}: corner {p} refused"
             );
         }

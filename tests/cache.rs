@@ -34,7 +34,13 @@ fn small_field_with(directional_filter: DirectionalFilter) -> GuidingField {
     let mut field = GuidingField::new(room_bounds(), config).unwrap();
     workload().train(&mut field, 2, 8_000);
     workload().record_iteration(&field, 2, 300);
-    field.record(&Sample::new(Vec3::splat(f32::NAN), Vec3::Z, 1.0, 1.0));
+    field.record(&Sample {
+        position: Vec3::splat(f32::NAN),
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    });
     field
 }
 
@@ -413,10 +419,22 @@ fn merged_workers_refine_like_one_process(filter: DirectionalFilter) {
     let (s1, s2) = (samples(10, 20_000, &a), samples(11, 20_000, &a));
     a.record_all(&s1);
     b.record_all(&s2);
-    b.record(&Sample::new(Vec3::ZERO, Vec3::Z, -1.0, 1.0));
+    b.record(&Sample {
+        position: Vec3::ZERO,
+        direction: Vec3::Z,
+        value: -1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    });
     union.record_all(&s1);
     union.record_all(&s2);
-    union.record(&Sample::new(Vec3::ZERO, Vec3::Z, -1.0, 1.0));
+    union.record(&Sample {
+        position: Vec3::ZERO,
+        direction: Vec3::Z,
+        value: -1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    });
     a.merge(&b).unwrap();
     assert_eq!(a.stats(), union.stats());
     for (ca, cu) in a.cells().zip(union.cells()) {

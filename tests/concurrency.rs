@@ -86,6 +86,7 @@ fn compare_serial_and_concurrent(
                 DirectionalFilter::Box | DirectionalFilter::DeferredBox => {
                     (threads * per_thread) as u64
                 }
+                _ => unreachable!("a filter this test does not know"),
             };
             let tol = terms as f64 * f64::EPSILON;
             assert!(

@@ -41,7 +41,13 @@ fn split_once(spatial: SpatialFilter, directional: DirectionalFilter) -> Guiding
     )
     .unwrap();
     for x in [0.2, 0.4, 0.8] {
-        field.record(&Sample::new(Vec3::new(x, 0.5, 0.5), Vec3::Z, 0.0, 1.0));
+        field.record(&Sample {
+            position: Vec3::new(x, 0.5, 0.5),
+            direction: Vec3::Z,
+            value: 0.0,
+            pdf: 1.0,
+            ..Sample::default()
+        });
     }
     field.refine();
     assert_eq!(field.stats().spatial_leaves, 2);
@@ -120,7 +126,13 @@ fn box_recorded(s: Vec2, v: f32, p: f32) -> ([f64; 4], [u64; 4]) {
         config(SpatialFilter::Nearest, DirectionalFilter::Box),
     )
     .unwrap();
-    field.record(&Sample::new(Vec3::splat(0.5), square_to_direction(s), v, p));
+    field.record(&Sample {
+        position: Vec3::splat(0.5),
+        direction: square_to_direction(s),
+        value: v,
+        pdf: p,
+        ..Sample::default()
+    });
     quadrants(&field, 0)
 }
 
@@ -166,7 +178,13 @@ fn spatial_box_shares_follow_the_overlapped_volume() {
     let field = split_once(SpatialFilter::Box, DirectionalFilter::Nearest);
     // The point's leaf is x ∈ [0.5, 1]; a box as large around x = 0.6 spans [0.35, 0.85]:
     // 0.15 of its 0.5 in the left leaf, 0.35 in the right one (y and z are the whole cube).
-    field.record(&Sample::new(Vec3::new(0.6, 0.5, 0.5), Vec3::Z, 1.0, 1.0));
+    field.record(&Sample {
+        position: Vec3::new(0.6, 0.5, 0.5),
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    });
     let per_cell: Vec<(f64, u64)> = field
         .cells()
         .map(|c| {
@@ -194,7 +212,13 @@ fn stochastic_filter_moves_by_the_callers_jitter_or_a_deterministic_hash() {
             .collect()
     };
     // x = 0.55 in the right leaf (extent 0.5 in x): jitter 0 moves it by −0.25, into the left.
-    let s = Sample::new(Vec3::new(0.55, 0.5, 0.5), Vec3::Z, 1.0, 1.0);
+    let s = Sample {
+        position: Vec3::new(0.55, 0.5, 0.5),
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    };
     field.record(&s.with_jitter(Vec3::new(0.0, 0.5, 0.5)));
     assert_eq!(counts(&field)[left], 1);
     field.record(&s.with_jitter(Vec3::new(0.5, 0.5, 0.5)));
@@ -205,7 +229,13 @@ fn stochastic_filter_moves_by_the_callers_jitter_or_a_deterministic_hash() {
     let mut rng = Rng::new(9);
     for _ in 0..1000 {
         let x = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-        let s = Sample::new(x, square_to_direction(rng.next_vec2()), 1.0, 1.0);
+        let s = Sample {
+            position: x,
+            direction: square_to_direction(rng.next_vec2()),
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        };
         a.record(&s);
         b.record(&s);
     }
@@ -231,12 +261,13 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
     let mut rng = Rng::new(2);
     for _ in 0..4000 {
         let s = Vec2::new(0.75 + 0.25 * rng.next_f32(), 0.5 * rng.next_f32());
-        field.record(&Sample::new(
-            Vec3::splat(0.5),
-            square_to_direction(s),
-            1.0,
-            1.0,
-        ));
+        field.record(&Sample {
+            position: Vec3::splat(0.5),
+            direction: square_to_direction(s),
+            value: 1.0,
+            pdf: 1.0,
+            ..Sample::default()
+        });
     }
     field.refine();
     // A sample at (0.45, 0.2) in the dark quadrant: the square [0.2, 0.7) × [−0.05, 0.45)
@@ -245,7 +276,13 @@ fn directional_box_gives_a_finer_neighbourhood_its_share_in_one_leaf() {
     // [0.3, 0.8) × [0, 0.05): 0.01 in its own leaf, 0.015 in the leaf holding (0.65, 0.025) — the
     // same dark leaf [0.5, 0.75) × [0, 0.25). Of 0.25: 58% and 42%.
     let d = square_to_direction(Vec2::new(0.45, 0.2));
-    field.record(&Sample::new(Vec3::splat(0.5), d, 1.0, 1.0));
+    field.record(&Sample {
+        position: Vec3::splat(0.5),
+        direction: d,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    });
     let cell = field.cells().next().unwrap();
     let contains = |l: &sdguide::DirectionalCell, x, y| l.contains(Vec2::new(x, y));
     let mut found = 0;
@@ -290,7 +327,13 @@ fn deferred_box_spreads_each_quadrant_as_the_box_filter_spreads_a_sample_at_its_
         // One quadrant far brighter than the others, so that its leaf splits.
         let bright = if (i, j) == (3, 1) { 30.0 } else { 1.0 };
         let (v, p) = (bright * (0.1 + rng.next_f32()), 0.5 + rng.next_f32());
-        let sample = Sample::new(Vec3::splat(0.5), square_to_direction(s), v, p);
+        let sample = Sample {
+            position: Vec3::splat(0.5),
+            direction: square_to_direction(s),
+            value: v,
+            pdf: p,
+            ..Sample::default()
+        };
         for f in &fields {
             f.record(&sample);
         }

@@ -2,7 +2,9 @@
 //! estimator's second moment, found by brute force.
 
 use glam::Vec3;
-use sdguide::selection::{INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
+use sdguide::guide_probability::{
+    INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
+};
 use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
 use sdguide_lab::quality::golden_section_min;
 use sdguide_lab::synthetic::{Bsdf, Rng, vmf_density};
@@ -87,8 +89,17 @@ fn the_guide_probability_converges_to_the_brute_force_minimizer() {
             let (pg, pb) = (dist.pdf(d), BSDF.pdf(d));
             let q0 = a * pg + (1.0 - a) * pb;
             let f = integrand(d);
-            field.record(&Sample::new(X, d, 0.0, q0).with_mixture(f, pb, pg));
-            // The terms of the Newton step (see `sdguide::selection`), for its error bar.
+            field.record(
+                &Sample {
+                    position: X,
+                    direction: d,
+                    value: 0.0,
+                    pdf: q0,
+                    ..Sample::default()
+                }
+                .with_mixture(f, pb, pg),
+            );
+            // The terms of the Newton step (see `sdguide::guide_probability`), for its error bar.
             let (pg, pb, f2) = (f64::from(pg), f64::from(pb), f64::from(f) * f64::from(f));
             let (q, diff) = (last * pg + (1.0 - last) * pb, pg - pb);
             let g = f2 * diff / (q * q * f64::from(q0));

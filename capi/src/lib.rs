@@ -316,6 +316,10 @@ fn finite(v: Vec3, name: &str) -> Result<Vec3, Failure> {
     }
 }
 
+/// What `sdg_config_default` says of a default this C API has no constant for (the library's
+/// enums may grow; this crate is built with the library, so it does not happen).
+const UNEXPRESSED: &str = "the library's default has no constant in this version of the C API";
+
 /// Fills `out` with the default configuration.
 ///
 /// # Safety
@@ -328,6 +332,7 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
             rule: match c.rule {
                 LeafRule::L1 => SDG_RULE_L1,
                 LeafRule::L2 => SDG_RULE_L2,
+                _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             spatial_threshold: c.spatial_threshold,
             subdivision_threshold: c.subdivision_threshold,
@@ -341,15 +346,18 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
                 SpatialFilter::Nearest => SDG_FILTER_NEAREST,
                 SpatialFilter::Stochastic => SDG_FILTER_STOCHASTIC,
                 SpatialFilter::Box => SDG_FILTER_BOX,
+                _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             directional_filter: match c.directional_filter {
                 DirectionalFilter::Nearest => SDG_FILTER_NEAREST,
                 DirectionalFilter::Box => SDG_FILTER_BOX,
                 DirectionalFilter::DeferredBox => SDG_FILTER_DEFERRED_BOX,
+                _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             refinement: match c.refinement {
                 Refinement::FluxShare => SDG_REFINEMENT_FLUX_SHARE,
                 Refinement::VarianceGain => SDG_REFINEMENT_VARIANCE_GAIN,
+                _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             gain_threshold: c.gain_threshold,
         };
@@ -467,7 +475,13 @@ pub unsafe extern "C" fn sdg_field_record(
 }
 
 fn record(field: &GuidingField, s: &sdg_sample) -> sdg_status {
-    let mut sample = Sample::new(s.position.into(), s.direction.into(), s.value, s.pdf);
+    let mut sample = Sample {
+        position: s.position.into(),
+        direction: s.direction.into(),
+        value: s.value,
+        pdf: s.pdf,
+        ..Sample::default()
+    };
     if [s.integrand, s.bsdf_pdf, s.guide_pdf] != [0.0; 3] {
         sample = sample.with_mixture(s.integrand, s.bsdf_pdf, s.guide_pdf);
     }

@@ -36,7 +36,7 @@
 use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
 use glam::Vec3;
 use rayon::prelude::*;
-use sdguide::selection::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
+use sdguide::guide_probability::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
 use sdguide::sphere::{SPHERE_AREA, square_to_direction};
 use sdguide::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 
@@ -436,6 +436,11 @@ impl Trained {
 /// assert!(v.oracle <= v.learned && v.learned < v.uniform);
 /// # Ok::<(), sdguide::ConfigError>(())
 /// ```
+///
+/// # Errors
+///
+/// A [`ConfigError`] when `config` or the field's bounds are refused by
+/// [`GuidingField::new`].
 pub fn train(
     test: &TestField,
     config: GuidingConfig,
@@ -446,6 +451,10 @@ pub fn train(
 
 /// Like [`train`], and [`evaluate`]s the field after every iteration: per iteration, the
 /// samples trained on so far and the report (the harness's plot of relvar against budget).
+///
+/// # Errors
+///
+/// As [`train`].
 pub fn learning_curve(
     test: &TestField,
     config: GuidingConfig,

@@ -280,7 +280,13 @@ impl Workload {
         let other_pdf = self.bsdf.map_or(INV_SPHERE_AREA, |b| b.pdf(d));
         let pdf = a * guide_pdf + (1.0 - a) * other_pdf;
         let v = self.value(x, d, rng);
-        let sample = Sample::new(x, d, v, pdf);
+        let sample = Sample {
+            position: x,
+            direction: d,
+            value: v,
+            pdf,
+            ..Sample::default()
+        };
         match self.bsdf {
             Some(_) => sample.with_mixture(v * other_pdf, other_pdf, guide_pdf),
             None => sample,

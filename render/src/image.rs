@@ -109,6 +109,10 @@ impl Image {
     }
 
     /// Writes the image as a 32-bit float RGB OpenEXR file.
+    ///
+    /// # Errors
+    ///
+    /// [`ImageError::Exr`] when the file cannot be written.
     pub fn write_exr(&self, path: &Path) -> Result<(), ImageError> {
         exr::prelude::write_rgb_file(path, self.width, self.height, |x, y| {
             let p = self.pixels[y * self.width + x];
@@ -118,6 +122,10 @@ impl Image {
     }
 
     /// Reads the first RGB(A) layer of an OpenEXR file.
+    ///
+    /// # Errors
+    ///
+    /// [`ImageError::Exr`] when the file cannot be read or has no RGB layer.
     pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
         let image = exr::prelude::read_first_rgba_layer_from_file(
             path,
@@ -140,6 +148,10 @@ impl Image {
     }
 
     /// Writes the tone-mapped image as an 8-bit sRGB PNG.
+    ///
+    /// # Errors
+    ///
+    /// As [`write_png`](fn@write_png).
     pub fn write_png(&self, path: &Path, exposure: f32) -> Result<(), ImageError> {
         write_png(path, self.width, self.height, &self.to_srgb8(exposure))
     }
@@ -191,6 +203,10 @@ pub fn false_colour(t: f32) -> [u8; 3] {
 }
 
 /// Writes 8-bit RGB pixels as a PNG.
+///
+/// # Errors
+///
+/// An [`ImageError`] when the file cannot be created or encoded.
 pub fn write_png(
     path: &Path,
     width: usize,

@@ -294,8 +294,18 @@ impl PathLog {
         match guide {
             Guide::Sdguide(field) => {
                 for v in vertices {
-                    let sample = Sample::new(v.position, v.direction, luminance(v.radiance), v.pdf)
-                        .with_mixture(luminance(v.radiance * v.bsdf_cos), v.bsdf_pdf, v.guide_pdf);
+                    let sample = Sample {
+                        position: v.position,
+                        direction: v.direction,
+                        value: luminance(v.radiance),
+                        pdf: v.pdf,
+                        ..Sample::default()
+                    }
+                    .with_mixture(
+                        luminance(v.radiance * v.bsdf_cos),
+                        v.bsdf_pdf,
+                        v.guide_pdf,
+                    );
                     field.record(&sample);
                 }
             }

@@ -193,6 +193,10 @@ impl Guide {
     /// reproduces a render; `threads` is the size of the thread pool its update may use.
     /// With `cosine_product`, every vertex's distribution is multiplied by the clamped cosine
     /// around the shading normal (Open PGL's `ApplyCosineProduct`).
+    ///
+    /// # Errors
+    ///
+    /// A message when Open PGL cannot create its device, field or sample storage.
     pub fn new(bounds: Aabb, cosine_product: bool, threads: usize) -> Result<Guide, String> {
         let device_type = if cfg!(target_arch = "x86_64") && avx2() {
             ffi::DEVICE_TYPE_CPU_8

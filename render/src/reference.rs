@@ -114,6 +114,10 @@ impl Description {
 }
 
 /// Stores `image`, rendered from `seed` (see [`seed`]), as the reference of `scene` in `dir`.
+///
+/// # Errors
+///
+/// An [`ImageError`] when the image or its description cannot be written.
 pub fn store(
     dir: &Path,
     scene: &Scene,
@@ -140,6 +144,10 @@ pub fn store(
 
 /// Loads the reference of `scene` from `dir` and checks it shows this scene at this resolution,
 /// from other random streams than those of a run seeded with `run_seed`.
+///
+/// # Errors
+///
+/// What is missing or does not match, with the command that renders a new reference.
 pub fn load(
     dir: &Path,
     scene: &Scene,

@@ -153,6 +153,7 @@ impl Method {
             Method::Unguided => "unguided",
             Method::Guided(LeafRule::L1) => "guided-l1",
             Method::Guided(LeafRule::L2) => "guided-l2",
+            Method::Guided(_) => "guided",
             #[cfg(feature = "openpgl")]
             Method::OpenPgl {
                 cosine_product: false,
@@ -239,6 +240,11 @@ pub struct Training<'a> {
 /// new field — passes of 1, 2, 4, … samples per pixel, each followed by `refine`, while the
 /// next pass still fits in the training share — unless `guiding` brings a trained one; then it
 /// renders with the field frozen until the budget is spent.
+///
+/// # Errors
+///
+/// A message when the guide cannot be made: a configuration sdguide refuses, or Open PGL
+/// failing to create its field.
 pub fn render(
     scene: &Scene,
     method: Method,

@@ -31,8 +31,8 @@ pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineOutcome, RefineParams};
 pub(crate) use sampling::{SamplingNode, SamplingTree};
 
+use crate::guide_probability::GuideSelection;
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
-use crate::selection::GuideSelection;
 use glam::Vec2;
 #[cfg(test)]
 use recording::FREE;
