@@ -18,203 +18,77 @@ fn field() -> GuidingField {
 fn every_bad_sample_is_rejected_and_counted_by_reason() {
     let mut field = field();
     let p = Vec3::splat(0.5);
+    let ok = Sample {
+        position: p,
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    };
     let bad = [
         // (sample, which counter)
         (
             Sample {
                 position: Vec3::new(NAN, 0.5, 0.5),
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "position",
         ),
         (
             Sample {
                 position: Vec3::new(0.5, INF, 0.5),
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "position",
         ),
         (
             Sample {
                 position: Vec3::new(0.5, 0.5, 1.5),
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "bounds",
         ),
         (
             Sample {
                 position: Vec3::new(-0.01, 0.5, 0.5),
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "bounds",
         ),
         (
             Sample {
-                position: p,
                 direction: Vec3::ZERO,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "direction",
         ),
         (
             Sample {
-                position: p,
                 direction: Vec3::new(NAN, 0.0, 1.0),
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "direction",
         ),
         (
             Sample {
-                position: p,
                 direction: Vec3::new(INF, 0.0, 1.0),
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
+                ..ok
             },
             "direction",
         ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: NAN,
-                pdf: 1.0,
-                ..Sample::default()
-            },
-            "value",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: INF,
-                pdf: 1.0,
-                ..Sample::default()
-            },
-            "value",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: -1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            },
-            "value",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 0.0,
-                ..Sample::default()
-            },
-            "pdf",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: -0.0,
-                ..Sample::default()
-            },
-            "pdf",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: -2.0,
-                ..Sample::default()
-            },
-            "pdf",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: NAN,
-                ..Sample::default()
-            },
-            "pdf",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: INF,
-                ..Sample::default()
-            },
-            "pdf",
-        ),
+        (Sample { value: NAN, ..ok }, "value"),
+        (Sample { value: INF, ..ok }, "value"),
+        (Sample { value: -1.0, ..ok }, "value"),
+        (Sample { pdf: 0.0, ..ok }, "pdf"),
+        (Sample { pdf: -0.0, ..ok }, "pdf"),
+        (Sample { pdf: -2.0, ..ok }, "pdf"),
+        (Sample { pdf: NAN, ..ok }, "pdf"),
+        (Sample { pdf: INF, ..ok }, "pdf"),
         // Mixture terms are checked like the value and the pdf.
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            }
-            .with_mixture(NAN, 1.0, 1.0),
-            "value",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            }
-            .with_mixture(-1.0, 1.0, 1.0),
-            "value",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            }
-            .with_mixture(1.0, -1.0, 1.0),
-            "pdf",
-        ),
-        (
-            Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            }
-            .with_mixture(1.0, 1.0, INF),
-            "pdf",
-        ),
+        (ok.with_mixture(NAN, 1.0, 1.0), "value"),
+        (ok.with_mixture(-1.0, 1.0, 1.0), "value"),
+        (ok.with_mixture(1.0, -1.0, 1.0), "pdf"),
+        (ok.with_mixture(1.0, 1.0, INF), "pdf"),
     ];
     let mut expected = Rejections::default();
     for (s, reason) in bad {
@@ -231,62 +105,33 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
     // outside the bounds (within the tolerance), an unnormalized direction.
     let good = [
         Sample {
-            position: p,
-            direction: Vec3::Z,
             value: f32::MAX,
             pdf: f32::from_bits(1),
-            ..Sample::default()
+            ..ok
         },
-        Sample {
-            position: p,
-            direction: Vec3::Z,
-            value: 0.0,
-            pdf: 1.0,
-            ..Sample::default()
-        },
+        Sample { value: 0.0, ..ok },
         Sample {
             position: Vec3::new(1.0005, 0.5, 0.5),
-            direction: Vec3::Z,
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
+            ..ok
         },
         Sample {
-            position: p,
             direction: Vec3::new(0.0, 3.0, 4.0),
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
+            ..ok
         },
         Sample {
-            position: p,
             direction: Vec3::splat(f32::MAX),
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
+            ..ok
         },
         Sample {
-            position: p,
             direction: Vec3::new(0.0, 1e-30, -1e-30),
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
+            ..ok
         },
         // Mixture terms at their extremes: a zero BSDF pdf, huge values, a subnormal mixture pdf.
+        ok.with_mixture(1.0, 0.0, 1.0),
         Sample {
-            position: p,
-            direction: Vec3::Z,
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
-        }
-        .with_mixture(1.0, 0.0, 1.0),
-        Sample {
-            position: p,
-            direction: Vec3::Z,
             value: f32::MAX,
             pdf: f32::from_bits(1),
-            ..Sample::default()
+            ..ok
         }
         .with_mixture(f32::MAX, f32::MAX, 0.0),
     ];
