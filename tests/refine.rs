@@ -9,6 +9,17 @@ fn unit_box() -> Aabb {
 }
 
 /// The centre of quadrant `q` (`q = ix + 2·iy`) of the square, as a direction.
+/// A sample of value 1 from +z at `position`, drawn with pdf 1.
+fn unit_sample(position: Vec3) -> Sample {
+    Sample {
+        position,
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 1.0,
+        ..Sample::default()
+    }
+}
+
 fn quadrant_direction(q: usize) -> Vec3 {
     square_to_direction(Vec2::new(
         0.25 + 0.5 * (q & 1) as f32,
@@ -249,13 +260,7 @@ fn spatial_split_follows_the_sample_count_rule() {
     let mut field = GuidingField::new(unit_box(), config).unwrap();
     for i in 0..1000 {
         let p = Vec3::new(i as f32 / 1000.0, 0.5, 0.5);
-        field.record(&Sample {
-            position: p,
-            direction: Vec3::Z,
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
-        });
+        field.record(&unit_sample(p));
     }
     field.refine();
     let stats = field.stats();
@@ -267,25 +272,13 @@ fn spatial_split_follows_the_sample_count_rule() {
     // In iteration 1 the threshold is 100·sqrt(2): 141 samples in one leaf do not split it.
     let before = stats.spatial_leaves;
     for _ in 0..141 {
-        field.record(&Sample {
-            position: Vec3::splat(0.01),
-            direction: Vec3::Z,
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
-        });
+        field.record(&unit_sample(Vec3::splat(0.01)));
     }
     field.refine();
     assert_eq!(field.stats().spatial_leaves, before);
     // In iteration 2 the threshold is 100·2 = 200: 201 samples split the leaf.
     for _ in 0..201 {
-        field.record(&Sample {
-            position: Vec3::splat(0.01),
-            direction: Vec3::Z,
-            value: 1.0,
-            pdf: 1.0,
-            ..Sample::default()
-        });
+        field.record(&unit_sample(Vec3::splat(0.01)));
     }
     field.refine();
     assert_eq!(field.stats().spatial_leaves, before + 1);
@@ -321,13 +314,7 @@ fn spatial_caps_stop_splitting_and_say_so() {
                 (i % 31) as f32 / 31.0,
                 (i % 13) as f32 / 13.0,
             );
-            field.record(&Sample {
-                position: p,
-                direction: Vec3::Z,
-                value: 1.0,
-                pdf: 1.0,
-                ..Sample::default()
-            });
+            field.record(&unit_sample(p));
         }
         field.refine();
         let stats = field.stats();

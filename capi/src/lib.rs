@@ -236,10 +236,15 @@ thread_local! {
     static HELD: Cell<u32> = const { Cell::new(0) };
 }
 
-/// Shared access for one call: behind a waiting writer (fair), unless this thread holds a
+/// Whether this thread's shared acquisitions re-enter past a waiting writer: it holds a
 /// distribution, which the writer waits for (see the crate documentation).
+fn reentrant() -> bool {
+    HELD.with(Cell::get) > 0
+}
+
+/// Shared access for one call: behind a waiting writer (fair), unless [`reentrant`].
 fn shared(lock: &RwLock<GuidingField>) -> parking_lot::RwLockReadGuard<'_, GuidingField> {
-    if HELD.with(Cell::get) > 0 {
+    if reentrant() {
         lock.read_recursive()
     } else {
         lock.read()
@@ -619,7 +624,7 @@ pub unsafe extern "C" fn sdg_field_distribution(
             return fail(sdg_status::NullPointer, "`out` is null");
         }
         // A thread holding a distribution may take another while a refine waits.
-        let field = if HELD.with(Cell::get) > 0 {
+        let field = if reentrant() {
             f.inner.read_arc_recursive()
         } else {
             f.inner.read_arc()

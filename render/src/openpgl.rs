@@ -253,11 +253,6 @@ impl Guide {
         }
     }
 
-    /// Whether the distributions carry the cosine product.
-    pub fn cosine_product(&self) -> bool {
-        self.cosine_product
-    }
-
     /// Training updates so far.
     pub fn iteration(&self) -> usize {
         // SAFETY: a read of the field, which `&self` keeps alive and unchanged.
