@@ -161,6 +161,22 @@ fn bench_query(c: &mut Criterion) {
             acc
         })
     });
+    // The same at a surface: the product with the clamped cosine about a normal (a random
+    // one per query; the other direction may lie on either side).
+    let normals: Vec<Vec3> = (0..BATCH)
+        .map(|_| sdguide::sphere::square_to_direction(rng.next_vec2()))
+        .collect();
+    g.bench_function("distribution+at_surface+sample+pdf", |b| {
+        b.iter(|| {
+            let mut acc = 0.0f32;
+            for (&(x, u, other), &n) in queries.iter().zip(&normals) {
+                let dist = field.distribution(black_box(x)).at_surface(black_box(n));
+                let (d, p) = dist.sample(black_box(u));
+                acc += p + d.x + dist.pdf(black_box(other));
+            }
+            acc
+        })
+    });
     g.bench_function("distribution", |b| {
         b.iter(|| {
             queries

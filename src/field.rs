@@ -7,15 +7,12 @@
 
 use crate::filter::hash_jitter;
 use crate::moments::weights;
-use crate::quadtree::{
-    DirectionalTree, RefineOutcome, RefineParams, SamplingTree, bytes_per_node, leaf_bytes,
-};
+use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes};
 use crate::spatial::SpatialTree;
-use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, ConfigError, DirectionalCell, FieldStats, GuidingConfig, Moments, RejectReason,
-    Rejections, Sample, SpatialFilter,
+    Aabb, ConfigError, DirectionalCell, DirectionalDistribution, FieldStats, GuidingConfig,
+    Moments, RejectReason, Rejections, Sample, SpatialFilter,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -214,10 +211,7 @@ impl GuidingField {
     #[inline]
     pub fn distribution(&self, position: Vec3) -> DirectionalDistribution<'_> {
         let tree = &self.trees[self.spatial.leaf_at(position)];
-        DirectionalDistribution {
-            tree: &tree.sampling,
-            guide_probability: tree.selection.probability,
-        }
+        DirectionalDistribution::of(tree)
     }
 
     /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
@@ -364,10 +358,7 @@ pub struct SpatialCell<'a> {
 impl<'a> SpatialCell<'a> {
     /// The distribution queries at positions in this cell receive.
     pub fn distribution(&self) -> DirectionalDistribution<'a> {
-        DirectionalDistribution {
-            tree: &self.tree.sampling,
-            guide_probability: self.tree.selection.probability,
-        }
+        DirectionalDistribution::of(self.tree)
     }
 
     /// The leaves of the current iteration's recording topology and their moments. Under
@@ -376,66 +367,5 @@ impl<'a> SpatialCell<'a> {
     /// hold every recorded sample's filtered share.
     pub fn recorded(&self) -> Vec<(DirectionalCell, Moments)> {
         self.tree.recording.leaves()
-    }
-}
-
-/// A piecewise-constant distribution over the sphere, borrowed from a [`GuidingField`].
-///
-/// Cheap to create and to copy; `sample` and `pdf` neither allocate nor lock.
-#[derive(Clone, Copy, Debug)]
-pub struct DirectionalDistribution<'a> {
-    tree: &'a SamplingTree,
-    guide_probability: f32,
-}
-
-impl DirectionalDistribution<'_> {
-    /// Draws a direction from two uniform numbers `u ∈ [0,1)²` (clamped into that range).
-    /// Returns the unit direction and its solid-angle density, which equals
-    /// [`pdf`](Self::pdf) of the returned direction exactly.
-    #[inline]
-    pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
-        let (s, pdf, near_border) = self.tree.sample(u);
-        let direction = square_to_direction(s);
-        let pdf = if near_border {
-            self.density_across_border(direction, pdf)
-        } else {
-            pdf
-        };
-        (direction, pdf * INV_SPHERE_AREA)
-    }
-
-    /// The density on the square that `pdf` finds for a sampled `direction` whose point lay
-    /// within rounding distance of its leaf's border (`pdf` is the density the descent found).
-    /// The round trip through the sphere moves a point by rounding only, but a point that close
-    /// to the border may come back in the neighbour. Rarely taken, and kept out of line so that
-    /// the inverse map does not weigh on how `sample` is compiled.
-    #[cold]
-    #[inline(never)]
-    fn density_across_border(&self, direction: Vec3, pdf: f32) -> f32 {
-        sphere::square_of(direction).map_or(pdf, |back| self.tree.pdf(back))
-    }
-
-    /// The solid-angle density of drawing `direction` (which need not be unit length; a zero or
-    /// non-finite direction has density 0).
-    #[inline]
-    pub fn pdf(&self, direction: Vec3) -> f32 {
-        match sphere::square_of(direction) {
-            Some(s) => self.tree.pdf(s) * INV_SPHERE_AREA,
-            None => 0.0,
-        }
-    }
-
-    /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
-    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and 0.95 (see
-    /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from samples recorded
-    /// with [`Sample::with_mixture`].
-    #[inline]
-    pub fn guide_probability(&self) -> f32 {
-        self.guide_probability
-    }
-
-    /// The leaves of the distribution with their probabilities (which sum to 1).
-    pub fn leaves(&self) -> Vec<(DirectionalCell, f32)> {
-        self.tree.leaves()
     }
 }

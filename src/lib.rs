@@ -18,6 +18,7 @@
 //!                                                  quadrant sums ─► split gains ─► new topology
 //!                                                  guide probability ─► one Newton step
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()
+//!                                                  distribution(x).at_surface(n) ─► the same, times the clamped cosine
 //!
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
@@ -56,6 +57,8 @@
 //!   split removes.
 //! - `spatial`: the binary tree over the scene's bounding cube.
 //! - `field`: [`GuidingField`], which ties them together.
+//! - `distribution`: what queries return — [`DirectionalDistribution`], and its product with a
+//!   surface's clamped cosine, [`SurfaceDistribution`] (the descent is `quadtree`'s `horizon`).
 //! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
 //! - [`filter`]: spreading a recorded sample over neighbouring cells (splatting).
 //! - `merge`: adding the statistics of fields trained in parallel.
@@ -73,6 +76,7 @@
 mod bounds;
 mod cache;
 mod config;
+mod distribution;
 mod field;
 pub mod filter;
 pub mod guide_probability;
@@ -93,7 +97,8 @@ pub use glam;
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
-pub use field::{DirectionalDistribution, GuidingField, SpatialCell};
+pub use distribution::{DirectionalDistribution, SurfaceDistribution};
+pub use field::{GuidingField, SpatialCell};
 pub use filter::{DirectionalFilter, SpatialFilter};
 pub use merge::MergeError;
 pub use moments::Moments;
@@ -112,6 +117,7 @@ mod tests {
         fn check<T: Send + Sync>() {}
         check::<GuidingField>();
         check::<DirectionalDistribution<'static>>();
+        check::<SurfaceDistribution<'static>>();
     }
 }
 

@@ -367,7 +367,21 @@ sdg_status sdg_field_distribution(const sdg_field *field,
                                   sdg_distribution **out);
 
 /*
- Draws a direction from a distribution (see `sdg_field_sample`).
+ Makes the distribution its product with the clamped cosine `max(0, n·ω)` about the surface
+ normal `normal` (any length; it is normalized), for a vertex on a surface that only
+ reflects: later `sdg_distribution_sample` and `sdg_distribution_pdf` calls sample and
+ evaluate the product (see the Rust `DirectionalDistribution::at_surface`). A zero normal
+ restores the plain distribution; a non-finite one is refused (`SDG_STATUS_INVALID_ARGUMENT`)
+ and leaves the distribution as it was.
+
+ # Safety
+ `dist` must be null or a live distribution, not used by another thread during the call.
+ */
+sdg_status sdg_distribution_set_normal(sdg_distribution *dist, sdg_vec3 normal);
+
+/*
+ Draws a direction from a distribution (see `sdg_field_sample`; with a normal set, from its
+ product with the cosine).
 
  # Safety
  `dist` must be null or a live distribution; `direction` and `pdf` null or valid for writes.
@@ -379,7 +393,8 @@ sdg_status sdg_distribution_sample(const sdg_distribution *dist,
                                    float *pdf);
 
 /*
- The solid-angle pdf of `direction` under a distribution (see `sdg_field_pdf`).
+ The solid-angle pdf of `direction` under a distribution (see `sdg_field_pdf`; with a
+ normal set, under its product with the cosine).
 
  # Safety
  `dist` must be null or a live distribution; `pdf` null or valid for writes.

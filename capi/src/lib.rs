@@ -216,6 +216,8 @@ pub struct sdg_field {
 pub struct sdg_distribution {
     field: ArcRwLockReadGuard<RawRwLock, GuidingField>,
     position: Vec3,
+    /// The surface normal set by `sdg_distribution_set_normal` (zero: none).
+    normal: Vec3,
     /// The thread that made it, whose count of held distributions it is in.
     owner: std::thread::ThreadId,
 }
@@ -554,13 +556,19 @@ pub unsafe extern "C" fn sdg_field_sample(
 }
 
 fn sample(field: &GuidingField, x: Vec3, u0: f32, u1: f32) -> Result<(Vec3, f32), Failure> {
+    finite_u(u0, u1)?;
+    Ok(field.distribution(x).sample(Vec2::new(u0, u1)))
+}
+
+/// Refuses non-finite sample coordinates.
+fn finite_u(u0: f32, u1: f32) -> Result<(), Failure> {
     if !(u0.is_finite() && u1.is_finite()) {
         return fail(
             sdg_status::InvalidArgument,
             format!("u = ({u0}, {u1}) is not finite"),
         );
     }
-    Ok(field.distribution(x).sample(Vec2::new(u0, u1)))
+    Ok(())
 }
 
 /// # Safety
@@ -633,6 +641,7 @@ pub unsafe extern "C" fn sdg_field_distribution(
         let dist = Box::new(sdg_distribution {
             field,
             position,
+            normal: Vec3::ZERO,
             owner: std::thread::current().id(),
         });
         // SAFETY: non-null, valid for writes by the caller's contract.
@@ -641,7 +650,43 @@ pub unsafe extern "C" fn sdg_field_distribution(
     })
 }
 
-/// Draws a direction from a distribution (see `sdg_field_sample`).
+/// Makes the distribution its product with the clamped cosine `max(0, n·ω)` about the surface
+/// normal `normal` (any length; it is normalized), for a vertex on a surface that only
+/// reflects: later `sdg_distribution_sample` and `sdg_distribution_pdf` calls sample and
+/// evaluate the product (see the Rust `DirectionalDistribution::at_surface`). A zero normal
+/// restores the plain distribution; a non-finite one is refused (`SDG_STATUS_INVALID_ARGUMENT`)
+/// and leaves the distribution as it was.
+///
+/// # Safety
+/// `dist` must be null or a live distribution, not used by another thread during the call.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_distribution_set_normal(
+    dist: *mut sdg_distribution,
+    normal: sdg_vec3,
+) -> sdg_status {
+    guard(|| {
+        if dist.is_null() {
+            return fail(sdg_status::NullPointer, "`dist` is null");
+        }
+        let n = finite(normal.into(), "normal")?;
+        // SAFETY: non-null, live and not shared during the call by the caller's contract.
+        unsafe { (*dist).normal = n };
+        Ok(sdg_status::Ok)
+    })
+}
+
+impl sdg_distribution {
+    /// What the distribution samples: the field's at its position, times the cosine if a
+    /// normal is set (a zero normal gives the plain distribution).
+    fn view(&self) -> sdguide::SurfaceDistribution<'_> {
+        self.field
+            .distribution(self.position)
+            .at_surface(self.normal)
+    }
+}
+
+/// Draws a direction from a distribution (see `sdg_field_sample`; with a normal set, from its
+/// product with the cosine).
 ///
 /// # Safety
 /// `dist` must be null or a live distribution; `direction` and `pdf` null or valid for writes.
@@ -656,13 +701,15 @@ pub unsafe extern "C" fn sdg_distribution_sample(
     guard(|| {
         // SAFETY: the caller's contract.
         let d = unsafe { arg(dist, "dist") }?;
-        let (dir, p) = sample(&d.field, d.position, u0, u1)?;
+        finite_u(u0, u1)?;
+        let (dir, p) = d.view().sample(Vec2::new(u0, u1));
         // SAFETY: the caller's contract.
         unsafe { write_sample(direction, pdf, dir, p) }
     })
 }
 
-/// The solid-angle pdf of `direction` under a distribution (see `sdg_field_pdf`).
+/// The solid-angle pdf of `direction` under a distribution (see `sdg_field_pdf`; with a
+/// normal set, under its product with the cosine).
 ///
 /// # Safety
 /// `dist` must be null or a live distribution; `pdf` null or valid for writes.
@@ -676,7 +723,7 @@ pub unsafe extern "C" fn sdg_distribution_pdf(
         // SAFETY: the caller's contract.
         let d = unsafe { arg(dist, "dist") }?;
         let dir = finite(direction.into(), "direction")?;
-        let p = d.field.distribution(d.position).pdf(dir);
+        let p = d.view().pdf(dir);
         // SAFETY: the caller's contract.
         unsafe { put(pdf, "pdf", p) }?;
         Ok(sdg_status::Ok)

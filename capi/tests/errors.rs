@@ -461,3 +461,74 @@ fn a_waiting_refine_is_not_starved_by_readers_that_keep_arriving() {
         sdg_field_destroy(other as *mut sdg_field);
     }
 }
+
+#[test]
+fn a_distribution_with_a_normal_samples_the_product_with_the_cosine() {
+    let f = field();
+    let mut dist = null_mut();
+    let (mut d, mut p, mut q) = (sdg_vec3::default(), 0.0f32, 0.0f32);
+    // SAFETY: valid pointers throughout; the distribution is destroyed before the field.
+    unsafe {
+        assert_eq!(
+            sdg_field_distribution(f, v(0.5, 0.5, 0.5), &mut dist),
+            sdg_status::Ok
+        );
+        assert_eq!(
+            sdg_distribution_set_normal(dist, v(0.0, 0.0, 2.0)),
+            sdg_status::Ok
+        );
+        // Straight below the surface: almost nothing; every draw above it, with its own pdf.
+        let mut up = 0.0f32;
+        assert_eq!(
+            sdg_distribution_pdf(dist, v(0.0, 0.0, 1.0), &mut up),
+            sdg_status::Ok
+        );
+        assert_eq!(
+            sdg_distribution_pdf(dist, v(0.0, 0.0, -1.0), &mut q),
+            sdg_status::Ok
+        );
+        assert!(q < 1e-4 * up, "{q} vs {up}");
+        for k in 0..64 {
+            let u = (k as f32 + 0.5) / 64.0;
+            assert_eq!(
+                sdg_distribution_sample(dist, u, 1.0 - u, &mut d, &mut p),
+                sdg_status::Ok
+            );
+            assert_eq!(sdg_distribution_pdf(dist, d, &mut q), sdg_status::Ok);
+            assert!(
+                d.z > 0.0 && p > 0.0 && p == q,
+                "({}, {}, {}): {p} vs {q}",
+                d.x,
+                d.y,
+                d.z
+            );
+        }
+        // A non-finite normal is refused and changes nothing; a zero one restores the plain
+        // distribution, which puts mass below.
+        assert_eq!(
+            sdg_distribution_set_normal(dist, v(f32::NAN, 0.0, 1.0)),
+            sdg_status::InvalidArgument
+        );
+        assert!(last_error().contains("normal"), "{}", last_error());
+        assert_eq!(
+            sdg_distribution_pdf(dist, v(0.0, 0.0, -1.0), &mut q),
+            sdg_status::Ok
+        );
+        assert!(q < 1e-4 * up, "{q} vs {up}");
+        assert_eq!(
+            sdg_distribution_set_normal(dist, v(0.0, 0.0, 0.0)),
+            sdg_status::Ok
+        );
+        assert_eq!(
+            sdg_distribution_pdf(dist, v(0.0, 0.0, -1.0), &mut q),
+            sdg_status::Ok
+        );
+        assert!((q - 1.0 / (4.0 * std::f32::consts::PI)).abs() < 1e-6, "{q}");
+        assert_eq!(
+            sdg_distribution_set_normal(null_mut(), v(0.0, 0.0, 1.0)),
+            sdg_status::NullPointer
+        );
+        sdg_distribution_destroy(dist);
+        sdg_field_destroy(f);
+    }
+}

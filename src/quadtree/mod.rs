@@ -22,11 +22,13 @@
 //! lets bottom-up passes run as one reverse sweep. Descents locate points in fixed point
 //! ([`fixed`]), so that every descent agrees on which cell holds a point.
 
+mod horizon;
 mod recording;
 mod refine;
 mod sampling;
 mod splat;
 
+pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH};
 pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineOutcome, RefineParams};
 pub(crate) use sampling::{SamplingNode, SamplingTree};

@@ -41,7 +41,7 @@ impl SamplingNode {
         }
     }
 
-    const UNIFORM: SamplingNode = SamplingNode {
+    pub(super) const UNIFORM: SamplingNode = SamplingNode {
         px: [0.5; 2],
         py: [[0.5; 2]; 2],
         child: [NO_CHILD; 4],

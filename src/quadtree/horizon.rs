@@ -1,0 +1,603 @@
+//! The sampling tree's product with a surface's clamped cosine: the density
+//! `p(ω) ∝ p_guide(ω)·ĉ(ω)`, with `ĉ`, cell by cell, a smoothed `max(0, n·ω)`.
+//!
+//! A guide learned from every vertex in a spatial cell knows nothing of which way each surface
+//! in it faces, and at a vertex its samples below the surface are wasted: the BSDF is zero
+//! there. The product descends the guide's tree and, at every node, weighs each quadrant's
+//! probability by an estimate of the cosine over the quadrant, then renormalizes. The density
+//! is the product of the conditionals chosen on the way down, so `sample` and `pdf` agree
+//! exactly whatever the estimate; the estimate only decides how closely the product follows
+//! the cosine.
+//!
+//! **The estimate.** For each child the descent evaluates `n·ω` at the child's four corners
+//! (the 3 × 3 grid over the node, four points at a time) and takes their range `[lo, hi]`;
+//! the estimate is the mean of `max(0, x)` for `x` uniform on it:
+//!
+//! ```text
+//!   ĉ = (lo + hi)/2           lo ≥ 0        (the corners all above)
+//!     = hi²/(2·(hi − lo))     lo < 0 < hi   (the horizon crosses the cell)
+//!     = 10⁻⁵·ramp(hi, 2·r_d)  hi ≤ 0        (the corners all below)
+//! ```
+//!
+//! The last line keeps the estimator unbiased: every direction of a cell at depth `d` lies
+//! within chord distance `r_d = 4.5·2^-d` of the cell's centre (measured: at most `4.27·2^-d`;
+//! a test checks the bound to depth 10), so within `2·r_d` of each corner, and a cell may hold
+//! a direction above the horizon only if `hi > −2·r_d`. `ramp(t, r)`, the mean of `max(0, x)`
+//! over `[t − r, t + r]`, is positive exactly then. So the product's density is positive
+//! wherever `n·ω > 0`, and zero only on cells wholly below; cells whose corners are all below
+//! keep a weight 10⁵ times smaller than the cosine would give them, so almost nothing is drawn
+//! there.
+//!
+//! **Below the guide's leaves.** A leaf the horizon crosses is descended further, as if split
+//! into four quadrants of equal guide probability, down to [`HORIZON_DEPTH`]; one over whose
+//! corners the cosine varies by more than a factor of three, down to [`SURFACE_DEPTH`]. So what
+//! is left below the horizon lies within a hair of it, and the cosine is followed inside
+//! coarse leaves too. A cell whose corners are all below ends the descent, even inside the
+//! guide's tree.
+
+use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
+use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
+use glam::{Vec2, Vec3, Vec4};
+use std::f32::consts::FRAC_PI_4;
+
+/// How deep the product follows the cosine inside the guide's leaves where the horizon does not
+/// cross them (cells at this depth have chord radius 0.018).
+pub(crate) const SURFACE_DEPTH: u32 = 8;
+
+/// How deep the product descends into cells the horizon may cross: their chord radius is
+/// 7·10⁻⁵, and their side (1.5·10⁻⁵) still fifteen times the map's round-trip error, so a
+/// point at a cell's centre comes back to it.
+pub(crate) const HORIZON_DEPTH: u32 = 16;
+
+/// `r_d·2^d`: the bound on the chord from a cell's centre direction to any of its directions.
+const CHORD_PER_SIDE: f32 = 4.5;
+
+/// Added to every chord radius: what the polynomial map of [`child_cosines`] and the rounding
+/// of `n·c` may move `t` by (a few 10⁻⁷), with room.
+const COSINE_ERROR: f32 = 4e-6;
+
+/// The chord radius of a cell at `depth`: `min(2, 4.5·2^-depth)`, plus the estimate's error.
+#[inline]
+fn chord_radius(depth: u32) -> f32 {
+    // 2^-depth from exponent bits (depth ≤ 24 + a few: a normal f32).
+    let side = f32::from_bits((127 - depth) << 23);
+    (CHORD_PER_SIDE * side).min(2.0) + COSINE_ERROR
+}
+
+/// The weight of a cell whose corners are all below the horizon but which may still reach
+/// above it between them, relative to the ramp of twice its chord radius: such a cell holds
+/// almost none of the cosine's integral, but must keep a positive weight.
+const CORNER_WEIGHT: f32 = 1.0e-5;
+
+/// The ramp's mean: `max(0, x)` averaged over `x` uniform on `[t − r, t + r]`.
+#[inline]
+fn ramp(t: Vec4, r: f32) -> Vec4 {
+    let crossing = (t + r) * (t + r) * (0.25 / r);
+    let above = t.cmpge(Vec4::splat(r));
+    let below = t.cmple(Vec4::splat(-r));
+    Vec4::select(below, Vec4::ZERO, Vec4::select(above, t, crossing))
+}
+
+/// `ĉ` of the module comment, lane by lane, for cells at `depth` whose corners' cosines range
+/// over `[lo, hi]`.
+#[inline]
+fn clamped_cosine(lo: Vec4, hi: Vec4, depth: u32) -> Vec4 {
+    let zero = Vec4::ZERO;
+    let above = (lo + hi) * 0.5;
+    let crossing = hi * hi / (2.0 * (hi - lo)).max(Vec4::splat(f32::MIN_POSITIVE));
+    let corners = ramp(hi, 2.0 * chord_radius(depth)) * CORNER_WEIGHT;
+    Vec4::select(
+        lo.cmpge(zero),
+        above,
+        Vec4::select(hi.cmpgt(zero), crossing, corners),
+    )
+}
+
+/// `n·ω` at four points of the square at once: the map of
+/// [`crate::sphere::square_to_direction`], with polynomial sine and cosine (error below
+/// 4·10⁻⁷).
+#[inline]
+fn cosines(n: Vec3, sx: Vec4, sy: Vec4) -> Vec4 {
+    let (u, v) = (2.0 * sx - 1.0, 2.0 * sy - 1.0);
+    let (up, vp) = (u.abs(), v.abs());
+    let sd = 1.0 - (up + vp);
+    // |(|v| − |u|)| ≤ r everywhere; the floor only keeps the quotient finite where r = 0 (the
+    // square's centre and corners, where |v| − |u| = 0 too).
+    let r = (1.0 - sd.abs()).max(Vec4::splat(1e-12));
+    // φ = π/4·((|v| − |u|)/r + 1) = π/4 + ψ, |ψ| ≤ π/4; cos φ and sin φ from cos ψ and sin ψ.
+    let psi = (vp - up) / r * FRAC_PI_4;
+    let p2 = psi * psi;
+    let sin_psi = psi * (1.0 + p2 * (-1.0 / 6.0 + p2 * (1.0 / 120.0 + p2 * (-1.0 / 5040.0))));
+    let cos_psi =
+        1.0 + p2 * (-0.5 + p2 * (1.0 / 24.0 + p2 * (-1.0 / 720.0 + p2 * (1.0 / 40320.0))));
+    let cos_phi = (cos_psi - sin_psi) * std::f32::consts::FRAC_1_SQRT_2;
+    let sin_phi = (cos_psi + sin_psi) * std::f32::consts::FRAC_1_SQRT_2;
+    let z = (1.0 - r * r).copysign(sd);
+    let k = r * (2.0 - r * r).max(Vec4::ZERO).sqrt();
+    let x = cos_phi.copysign(u) * k;
+    let y = sin_phi.copysign(v) * k;
+    x * n.x + y * n.y + z * n.z
+}
+
+/// The range `[lo, hi]` of `n·ω` over the corners of each of the four children of the cell
+/// `cell` at `depth` (child `q = ix + 2·iy` in lane `q`): the children's corners are the 3 × 3
+/// grid over the cell, evaluated as three groups of four.
+#[inline]
+fn child_corner_range(n: Vec3, cell: [u32; 2], depth: u32) -> (Vec4, Vec4) {
+    // Grid point (i, j) is (2·cell + (i, j))·2^-(depth + 1): exact in f32.
+    let half = f32::from_bits((126 - depth) << 23);
+    let (x0, y0) = ((2 * cell[0]) as f32, (2 * cell[1]) as f32);
+    let g0 = cosines(
+        n,
+        Vec4::new(x0, x0 + 1.0, x0 + 2.0, x0) * half,
+        Vec4::new(y0, y0, y0, y0 + 1.0) * half,
+    );
+    let g1 = cosines(
+        n,
+        Vec4::new(x0 + 1.0, x0 + 2.0, x0, x0 + 1.0) * half,
+        Vec4::new(y0 + 1.0, y0 + 1.0, y0 + 2.0, y0 + 2.0) * half,
+    );
+    let g2 = cosines(
+        n,
+        Vec4::splat(x0 + 2.0) * half,
+        Vec4::splat(y0 + 2.0) * half,
+    );
+    // Grid values, row-major: g[j·3 + i].
+    let g = [g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w, g2.x];
+    // Child q's corners: its lower-left grid point k = iy·3 + ix, and k+1, k+3, k+4.
+    let at = |k: usize| Vec4::new(g[k], g[k + 1], g[k + 3], g[k + 4]);
+    let (a, b, c, d) = (at(0), at(1), at(3), at(4));
+    (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)))
+}
+
+/// One level of the product's descent: the conditionals of the four quadrants, as a
+/// [`SamplingNode`] holds them, and the range of the cosine over each child's corners.
+struct Level {
+    px: [f32; 2],
+    py: [[f32; 2]; 2],
+    lo: Vec4,
+    hi: Vec4,
+}
+
+impl Level {
+    /// The product's conditionals at the node `guide` (the guide's own, or uniform inside a
+    /// leaf) whose cell is `cell` at `depth`. Where every quadrant's estimate is zero (a cell
+    /// wholly below the horizon, entered only through the estimate's slack) the guide's own
+    /// conditionals stand, so the conditionals always sum to 1.
+    #[inline]
+    fn new(guide: &SamplingNode, n: Vec3, cell: [u32; 2], depth: u32) -> Self {
+        let (lo, hi) = child_corner_range(n, cell, depth);
+        let p = Vec4::new(
+            guide.px[0] * guide.py[0][0],
+            guide.px[1] * guide.py[1][0],
+            guide.px[0] * guide.py[0][1],
+            guide.px[1] * guide.py[1][1],
+        );
+        let w = (p * clamped_cosine(lo, hi, depth + 1)).to_array();
+        let col = [w[0] + w[2], w[1] + w[3]];
+        let total = col[0] + col[1];
+        if total.is_nan() || total <= 0.0 {
+            return Self {
+                px: guide.px,
+                py: guide.py,
+                lo,
+                hi,
+            };
+        }
+        let within = |ix: usize| {
+            if col[ix] > 0.0 {
+                [w[ix] / col[ix], w[ix + 2] / col[ix]]
+            } else {
+                [0.5, 0.5]
+            }
+        };
+        Self {
+            px: [col[0] / total, col[1] / total],
+            py: [within(0), within(1)],
+            lo,
+            hi,
+        }
+    }
+
+    /// `4·P(q)`, as [`SamplingNode`]'s: sample and pdf multiply the same factors.
+    #[inline]
+    fn density_factor(&self, ix: usize, iy: usize) -> f32 {
+        4.0 * self.px[ix] * self.py[ix][iy]
+    }
+
+    /// Whether the child `q`, a leaf of the guide's tree at `depth`, is descended further:
+    /// to [`HORIZON_DEPTH`] if the horizon crosses it between its corners, to
+    /// [`SURFACE_DEPTH`] if the cosine varies over its corners by more than a factor of three.
+    /// A cell whose corners are all below keeps its small weight whole: descending it would
+    /// multiply small conditionals level after level, toward densities `f32` cannot hold.
+    #[inline]
+    fn descend_inside(&self, q: usize, depth: u32) -> bool {
+        let (lo, hi) = (self.lo[q], self.hi[q]);
+        let crossed = lo < 0.0 && hi > 0.0;
+        (crossed && depth < HORIZON_DEPTH) || (lo >= 0.0 && hi > 3.0 * lo && depth < SURFACE_DEPTH)
+    }
+}
+
+/// Where a descent stands: the guide's node (or none, inside one of its leaves), the cell and
+/// its depth.
+struct Cursor {
+    node: Option<usize>,
+    cell: [u32; 2],
+    depth: u32,
+}
+
+impl Cursor {
+    const ROOT: Cursor = Cursor {
+        node: Some(0),
+        cell: [0, 0],
+        depth: 0,
+    };
+
+    /// The level at the cursor's node.
+    #[inline]
+    fn level(&self, tree: &SamplingTree, n: Vec3) -> Level {
+        let guide = match self.node {
+            Some(i) => &tree.nodes()[i],
+            None => &SamplingNode::UNIFORM,
+        };
+        Level::new(guide, n, self.cell, self.depth)
+    }
+
+    /// Moves into quadrant `(ix, iy)`; `false` when the descent ends there.
+    #[inline]
+    fn enter(&mut self, tree: &SamplingTree, level: &Level, ix: usize, iy: usize) -> bool {
+        let q = ix | iy << 1;
+        self.cell = [2 * self.cell[0] + ix as u32, 2 * self.cell[1] + iy as u32];
+        self.depth += 1;
+        // A cell whose corners are all below the horizon ends the descent even inside the
+        // guide's tree: its weight is the small positive one that keeps the estimator
+        // unbiased, and the guide's shape within it does not matter.
+        if level.hi[q] <= 0.0 {
+            return false;
+        }
+        self.node = self
+            .node
+            .map(|i| tree.nodes()[i].child[q])
+            .filter(|&c| c != NO_CHILD)
+            .map(usize::from);
+        self.node.is_some() || level.descend_inside(q, self.depth)
+    }
+}
+
+/// The column (or row) `u` falls in, never one of probability zero (rounding at the end of an
+/// interval could otherwise pick it).
+#[inline]
+fn choose(p: [f32; 2], u: f32, cut: f32) -> usize {
+    if p[1] == 0.0 {
+        0
+    } else if p[0] == 0.0 {
+        1
+    } else {
+        usize::from(u >= cut)
+    }
+}
+
+#[inline]
+#[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
+fn unit(x: f32) -> f32 {
+    x.max(0.0).min(ONE_MINUS_EPSILON)
+}
+
+impl SamplingTree {
+    /// [`sample`](SamplingTree::sample) of the product with the clamped cosine about the unit
+    /// normal `n`: the point, its density on the square, whether it may lie within rounding
+    /// distance of its cell's border, and the centre of its cell.
+    pub(crate) fn sample_surface(&self, n: Vec3, u: Vec2) -> (Vec2, f32, bool, Vec2) {
+        let u = Vec2::new(unit(u.x), unit(u.y));
+        let (mut a, mut w) = (Vec2::ZERO, Vec2::ONE);
+        let mut pdf = 1.0;
+        let mut at = Cursor::ROOT;
+        loop {
+            let level = at.level(self, n);
+            let ix = choose(level.px, u.x, a.x + w.x * level.px[0]);
+            let py = level.py[ix];
+            let iy = choose(py, u.y, a.y + w.y * py[0]);
+            a += Vec2::new(w.x * level.px[0] * ix as f32, w.y * py[0] * iy as f32);
+            w *= Vec2::new(level.px[ix], py[iy]);
+            pdf *= level.density_factor(ix, iy);
+            if !at.enter(self, &level, ix, iy) {
+                break;
+            }
+        }
+        let size = f32::from_bits((127 - at.depth) << 23);
+        let inv_size = f32::from_bits((127 + at.depth) << 23);
+        let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
+        let origin = Vec2::new(at.cell[0] as f32, at.cell[1] as f32) * size;
+        let margin = ROUND_TRIP_BOUND * inv_size;
+        let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
+        let centre = origin + Vec2::splat(0.5 * size);
+        (origin + local * size, pdf, near_border, centre)
+    }
+
+    /// [`pdf`](SamplingTree::pdf) of the product with the clamped cosine about the unit
+    /// normal `n`, at `s ∈ [0,1)²`.
+    pub(crate) fn pdf_surface(&self, n: Vec3, s: Vec2) -> f32 {
+        let p = fixed(s);
+        let mut pdf = 1.0;
+        let mut at = Cursor::ROOT;
+        loop {
+            let level = at.level(self, n);
+            let (ix, iy) = quadrant_bits(p, at.depth + 1);
+            pdf *= level.density_factor(ix, iy);
+            if pdf == 0.0 || !at.enter(self, &level, ix, iy) {
+                return pdf;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quadtree::testing::{random_sampling_tree, uniform};
+    use crate::sphere::square_to_direction;
+
+    #[test]
+    fn every_direction_of_a_cell_lies_within_its_chord_radius() {
+        // The cell's border bounds its image on the sphere; sample it densely.
+        for depth in 1..=10u32 {
+            let n = 1u32 << depth;
+            let size = 1.0 / n as f64;
+            let (mut worst, mut cells) = (0.0f64, 0);
+            // All cells to depth 6; beyond, a spread of cells that includes the square's
+            // border, its centre and its corners, where the map is most distorted.
+            let picks: Vec<u32> = if depth <= 6 {
+                (0..n).collect()
+            } else {
+                (0..n)
+                    .step_by((n / 16) as usize)
+                    .chain([n / 2 - 1, n - 1])
+                    .collect()
+            };
+            for &cx in &picks {
+                for &cy in &picks {
+                    cells += 1;
+                    let c = square_to_direction(Vec2::new(
+                        ((f64::from(cx) + 0.5) * size) as f32,
+                        ((f64::from(cy) + 0.5) * size) as f32,
+                    ));
+                    for i in 0..=32 {
+                        let t = f64::from(i) / 32.0;
+                        for (bx, by) in [(t, 0.0), (t, 1.0), (0.0, t), (1.0, t)] {
+                            let s = Vec2::new(
+                                ((f64::from(cx) + bx) * size) as f32,
+                                ((f64::from(cy) + by) * size) as f32,
+                            );
+                            worst = worst.max(f64::from((square_to_direction(s) - c).length()));
+                        }
+                    }
+                }
+            }
+            let bound = f64::from(chord_radius(depth) - COSINE_ERROR);
+            assert!(
+                worst <= bound,
+                "depth {depth}: {worst} > {bound} ({cells} cells)"
+            );
+        }
+    }
+
+    #[test]
+    fn the_corner_cosines_follow_the_exact_map() {
+        let mut next = uniform(3);
+        for _ in 0..2000 {
+            let n = Vec3::new(
+                next() as f32 - 0.5,
+                next() as f32 - 0.5,
+                next() as f32 - 0.5,
+            )
+            .normalize();
+            let depth = (next() * 12.0) as u32;
+            let side = 1u32 << depth;
+            let cell = [
+                (next() * f64::from(side)) as u32,
+                (next() * f64::from(side)) as u32,
+            ];
+            let (lo, hi) = child_corner_range(n, cell, depth);
+            for q in 0..4 {
+                let (ix, iy) = ((q & 1) as u32, (q >> 1) as u32);
+                let half = 0.5 / side as f32;
+                let exact: Vec<f32> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                    .iter()
+                    .map(|&(a, b)| {
+                        let s =
+                            Vec2::new((2 * cell[0] + ix + a) as f32, (2 * cell[1] + iy + b) as f32)
+                                * half;
+                        square_to_direction(s).dot(n)
+                    })
+                    .collect();
+                let (elo, ehi) = exact
+                    .iter()
+                    .fold((2.0f32, -2.0f32), |(l, h), &x| (l.min(x), h.max(x)));
+                assert!(
+                    (lo[q] - elo).abs() < COSINE_ERROR / 4.0,
+                    "{} vs {elo}",
+                    lo[q]
+                );
+                assert!(
+                    (hi[q] - ehi).abs() < COSINE_ERROR / 4.0,
+                    "{} vs {ehi}",
+                    hi[q]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_estimate_is_the_mean_over_the_corners_range_and_positive_where_it_may_reach_above() {
+        let r = 0.5;
+        let c = ramp(Vec4::new(-0.6, -0.5, 0.0, 0.7), r).to_array();
+        assert_eq!(c[..2], [0.0, 0.0]);
+        // The mean of max(0, x) over [−½, ½] is 1/8.
+        assert!((c[2] - 0.125).abs() < 1e-7);
+        assert_eq!(c[3], 0.7);
+        for depth in 1..=HORIZON_DEPTH {
+            let reach = 2.0 * chord_radius(depth);
+            let lo = Vec4::new(-0.5, -0.5, -0.2, 0.2);
+            let hi = Vec4::new(-reach, (-reach).next_up(), 0.2, 0.6);
+            let c = clamped_cosine(lo, hi, depth).to_array();
+            // Farther below than any direction of the cell can be from a corner: nothing.
+            assert_eq!(c[0], 0.0, "depth {depth}");
+            // A corner within reach: positive, and tiny.
+            assert!(c[1] > 0.0 && c[1] < 1e-4, "depth {depth}: {}", c[1]);
+            // Crossed: the mean of max(0, x) over [−0.2, 0.2], 0.05; above: the mean, 0.4.
+            assert!(
+                (c[2] - 0.05).abs() < 1e-7 && (c[3] - 0.4).abs() < 1e-7,
+                "{c:?}"
+            );
+        }
+    }
+
+    /// Every final cell of the product's descent with its probability, depth first.
+    fn final_cells(tree: &SamplingTree, n: Vec3) -> Vec<([u32; 2], u32, f64)> {
+        fn visit(
+            tree: &SamplingTree,
+            n: Vec3,
+            at: Cursor,
+            p: f64,
+            out: &mut Vec<([u32; 2], u32, f64)>,
+        ) {
+            let level = at.level(tree, n);
+            for q in 0..4 {
+                let (ix, iy) = (q & 1, q >> 1);
+                let pq = p * f64::from(level.density_factor(ix, iy)) / 4.0;
+                if pq == 0.0 {
+                    continue;
+                }
+                let mut next = Cursor { ..at };
+                if next.enter(tree, &level, ix, iy) {
+                    visit(tree, n, next, pq, out);
+                } else {
+                    out.push((next.cell, next.depth, pq));
+                }
+            }
+        }
+        let mut out = Vec::new();
+        visit(tree, n, Cursor::ROOT, 1.0, &mut out);
+        out
+    }
+
+    fn normals(next: &mut impl FnMut() -> f64) -> Vec<Vec3> {
+        let mut out = vec![Vec3::Z, -Vec3::Z, Vec3::X, Vec3::new(0.0, 0.6, -0.8)];
+        while out.len() < 6 {
+            let v = Vec3::new(next() as f32, next() as f32, next() as f32) * 2.0 - 1.0;
+            out.extend(v.try_normalize());
+        }
+        out
+    }
+
+    #[test]
+    fn the_product_integrates_to_one_and_pdf_is_each_cells_probability() {
+        let mut next = uniform(13);
+        for seed in 1..=3 {
+            let tree = random_sampling_tree(seed);
+            for n in normals(&mut next) {
+                let cells = final_cells(&tree, n);
+                let total: f64 = cells.iter().map(|c| c.2).sum();
+                assert!((total - 1.0).abs() < 1e-5, "seed {seed}, n = {n}: {total}");
+                // The density `pdf` finds at each cell's centre, times the cell's area, is the
+                // probability the descent gave it (so `pdf` integrates to 1 too).
+                for &(cell, depth, p) in &cells {
+                    let size = 0.5f32.powi(depth as i32);
+                    let centre = (Vec2::new(cell[0] as f32, cell[1] as f32) + 0.5) * size;
+                    let mass = f64::from(tree.pdf_surface(n, centre)) * f64::from(size * size);
+                    // (The test trees' masses span 10⁻⁹ per level, so some densities are
+                    // `f32` subnormals, exact to an absolute 10⁻⁴⁵ only.)
+                    assert!(
+                        (mass - p).abs() <= 1e-5 * p + 1e-38,
+                        "{cell:?} at {depth}: {mass} vs {p}"
+                    );
+                    assert!(mass > 0.0 || p < 1e-38, "{cell:?} at {depth}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_product_samples_its_cells_chi_square() {
+        // Bins: the 32 × 32 grid; each final cell's probability goes to the bins it covers
+        // (in equal shares: the density is constant on it).
+        let (bins, draws) = (32u32, 1_000_000u64);
+        let mut next = uniform(17);
+        let tree = random_sampling_tree(2);
+        for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
+            let mut expected = vec![0.0f64; (bins * bins) as usize];
+            for (cell, depth, p) in final_cells(&tree, n) {
+                if depth >= 5 {
+                    let shift = depth - 5;
+                    expected[((cell[1] >> shift) * bins + (cell[0] >> shift)) as usize] += p;
+                } else {
+                    let k = 1u32 << (5 - depth);
+                    let share = p / f64::from(k * k);
+                    for j in 0..k {
+                        for i in 0..k {
+                            let (bx, by) = (cell[0] * k + i, cell[1] * k + j);
+                            expected[(by * bins + bx) as usize] += share;
+                        }
+                    }
+                }
+            }
+            let mut observed = vec![0u64; expected.len()];
+            for _ in 0..draws {
+                let (s, _, _, _) = tree.sample_surface(n, Vec2::new(next() as f32, next() as f32));
+                let (i, j) = ((s.x * bins as f32) as u32, (s.y * bins as f32) as u32);
+                observed[(j * bins + i) as usize] += 1;
+            }
+            // Pool the bins expecting fewer than 5 draws, as the chi-square approximation asks.
+            let (mut chi2, mut dof, mut pooled) = (0.0, 0usize, (0.0, 0.0));
+            for (&o, &p) in observed.iter().zip(&expected) {
+                let e = p * draws as f64;
+                if e < 5.0 {
+                    pooled = (pooled.0 + o as f64, pooled.1 + e);
+                } else {
+                    chi2 += (o as f64 - e).powi(2) / e;
+                    dof += 1;
+                }
+            }
+            if pooled.1 >= 5.0 {
+                chi2 += (pooled.0 - pooled.1).powi(2) / pooled.1;
+                dof += 1;
+            } else {
+                // A Poisson count of mean below 5 exceeds 20 with probability below 1e-6.
+                assert!(pooled.0 <= 20.0, "{pooled:?}");
+            }
+            assert!(dof > 150, "{dof} bins");
+            // Wilson–Hilferty: exceeded with probability ~1e-6 by a correct sampler.
+            let k = (dof - 1) as f64;
+            let a = 2.0 / (9.0 * k);
+            let bound = k * (1.0 - a + 4.75 * a.sqrt()).powi(3);
+            assert!(
+                chi2 < bound,
+                "n = {n}: chi2 = {chi2}, bound = {bound}, {dof} bins"
+            );
+        }
+    }
+
+    #[test]
+    fn surface_sample_returns_the_pdf_of_its_point_and_stays_above() {
+        let mut next = uniform(9);
+        for seed in 1..=4 {
+            let tree = random_sampling_tree(seed);
+            for _ in 0..20 {
+                let n = Vec3::new(
+                    next() as f32 - 0.5,
+                    next() as f32 - 0.5,
+                    next() as f32 - 0.5,
+                )
+                .normalize();
+                for _ in 0..2000 {
+                    let u = Vec2::new(next() as f32, next() as f32);
+                    let (s, pdf, near, _) = tree.sample_surface(n, u);
+                    assert!(pdf > 0.0 && pdf.is_finite(), "pdf {pdf}");
+                    if !near {
+                        assert_eq!(tree.pdf_surface(n, s).to_bits(), pdf.to_bits(), "u = {u}");
+                    }
+                }
+            }
+        }
+    }
+}
