@@ -1,12 +1,14 @@
 //! The path tracer, and the reference for wiring sdguide into one.
 //!
-//! A unidirectional path tracer with next-event estimation and multiple importance sampling
-//! (power heuristic) and Russian roulette. With guiding, every scattering direction is drawn
+//! A unidirectional path tracer with next-event estimation (unless the scene turns it off) and
+//! multiple importance sampling (power heuristic) and Russian roulette. With guiding, every scattering direction is drawn
 //! from the **one-sample mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the
 //! field's distribution at the vertex and `a` its learned guide probability. The wiring points
 //! are marked `GUIDING:` below; there are four:
 //!
-//! 1. at a vertex, look up the distribution once (`field.distribution(x)`);
+//! 1. at a vertex, look up the distribution once, as its product with the clamped cosine about
+//!    the shading normal (`field.distribution(x).at_surface(n)`: every material here reflects
+//!    only, so nothing below the surface is worth a sample);
 //! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
 //!    and for every next-event direction, since MIS must weigh the strategy actually used;
 //! 3. keep, per vertex, what the path later adds to the radiance arriving along the sampled
@@ -25,7 +27,7 @@ use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::Vec2;
 use glam::Vec3;
-use sdguide::{DirectionalDistribution, GuidingField, Sample};
+use sdguide::{GuidingField, Sample, SurfaceDistribution};
 
 /// Longest path, in scattering events.
 pub const MAX_DEPTH: usize = 10;
@@ -68,7 +70,10 @@ impl<'a> Guide<'a> {
     #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))]
     fn at(self, position: Vec3, normal: Vec3, lookup: f32) -> Option<GuideView<'a>> {
         match self {
-            Guide::Sdguide(field) => Some(GuideView::Sdguide(field.distribution(position))),
+            // The product with the surface's clamped cosine: the BSDF is zero below it.
+            Guide::Sdguide(field) => Some(GuideView::Sdguide(
+                field.distribution(position).at_surface(normal),
+            )),
             #[cfg(feature = "openpgl")]
             Guide::OpenPgl(field) => field
                 .distribution(position, normal, lookup)
@@ -111,17 +116,22 @@ pub struct MixturePdf {
 
 /// A guide's directional distribution at one vertex.
 enum GuideView<'a> {
-    Sdguide(DirectionalDistribution<'a>),
+    Sdguide(SurfaceDistribution<'a>),
     #[cfg(feature = "openpgl")]
     OpenPgl(crate::openpgl::Distribution),
 }
 
 impl GuideView<'_> {
-    fn sample(&self, u: Vec2) -> Vec3 {
+    /// A direction, and its pdf where the guide returns it with the draw (sdguide's is
+    /// exactly what `pdf` would say, so no second descent is needed).
+    fn sample(&self, u: Vec2) -> (Vec3, Option<f32>) {
         match self {
-            GuideView::Sdguide(d) => d.sample(u).0,
+            GuideView::Sdguide(d) => {
+                let (direction, pdf) = d.sample(u);
+                (direction, Some(pdf))
+            }
             #[cfg(feature = "openpgl")]
-            GuideView::OpenPgl(d) => d.sample(u),
+            GuideView::OpenPgl(d) => (d.sample(u), None),
         }
     }
 
@@ -202,9 +212,14 @@ impl<'a> VertexSampler<'a> {
 
     /// The pdfs of drawing the world direction `direction`.
     pub fn pdf(&self, direction: Vec3) -> MixturePdf {
-        let bsdf = self.material.pdf(self.wo, self.frame.to_local(direction));
         // GUIDING (2): MIS and the estimator need the pdf of the whole mixture.
         let guide = self.guide.as_ref().map_or(0.0, |g| g.pdf(direction));
+        self.mixture_pdf(direction, guide)
+    }
+
+    /// The pdfs of `direction`, whose guide pdf is `guide`.
+    fn mixture_pdf(&self, direction: Vec3, guide: f32) -> MixturePdf {
+        let bsdf = self.material.pdf(self.wo, self.frame.to_local(direction));
         MixturePdf {
             mixture: self.a * guide + (1.0 - self.a) * bsdf,
             bsdf,
@@ -218,14 +233,17 @@ impl<'a> VertexSampler<'a> {
         let choice = rng.next_f32();
         let lobe = rng.next_f32();
         let u = rng.next_vec2();
-        let direction = match &self.guide {
+        let (direction, guide_pdf) = match &self.guide {
             Some(guide) if choice < self.a => guide.sample(u),
             _ => {
                 let s = self.material.sample(self.wo, lobe, u)?;
-                self.frame.to_world(s.wi)
+                (self.frame.to_world(s.wi), None)
             }
         };
-        let pdf = self.pdf(direction);
+        let pdf = match guide_pdf {
+            Some(guide) => self.mixture_pdf(direction, guide),
+            None => self.pdf(direction),
+        };
         (pdf.mixture > 0.0).then_some(DirectionSample { direction, pdf })
     }
 }
@@ -350,8 +368,10 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
         let emitted = scene.emitted(&hit, wo);
         if emitted != Vec3::ZERO {
             let weight = match previous {
-                None => 1.0,
-                Some((x, pdf)) => power_heuristic(pdf, scene.light_pdf(x, &hit, ray.direction)),
+                Some((x, pdf)) if scene.next_event => {
+                    power_heuristic(pdf, scene.light_pdf(x, &hit, ray.direction))
+                }
+                _ => 1.0,
             };
             l += beta * emitted * weight;
             log.add(emitted * weight);
@@ -377,7 +397,11 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
 
         // Next-event estimation, weighed against the mixture that would also find the light.
         let (pick, u) = (rng.next_f32(), rng.next_vec2());
-        if let Some(light) = scene.sample_light(hit.position, pick, u) {
+        let light = scene
+            .next_event
+            .then(|| scene.sample_light(hit.position, pick, u))
+            .flatten();
+        if let Some(light) = light {
             let f = sampler.bsdf_cos(light.direction);
             if f != Vec3::ZERO {
                 let shadow = Ray::shadow(hit.position, hit.normal, light.direction, light.distance);

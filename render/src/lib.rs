@@ -18,6 +18,7 @@ pub mod integrator;
 pub mod material;
 #[cfg(feature = "openpgl")]
 pub mod openpgl;
+pub mod probe;
 pub mod reference;
 pub mod render;
 pub mod rng;

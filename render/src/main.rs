@@ -7,6 +7,8 @@
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
+//!     [--nee on|off]
+//! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
@@ -25,7 +27,7 @@ const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--
 [--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
-[--reference]";
+[--nee on|off] [--reference] [--probe CACHE]";
 
 struct Args {
     scene: String,
@@ -42,6 +44,10 @@ struct Args {
     refinement: Refinement,
     directional_filter: DirectionalFilter,
     spatial_threshold: f32,
+    /// Next-event estimation (light sampling at every vertex).
+    nee: bool,
+    /// A trained cache to probe instead of rendering.
+    probe: Option<PathBuf>,
     /// The Open PGL methods to run: with the cosine product or not.
     peers: Vec<bool>,
 }
@@ -68,6 +74,8 @@ fn parse() -> Result<Args, String> {
         refinement: Refinement::default(),
         directional_filter: DirectionalFilter::default(),
         spatial_threshold: GuidingConfig::default().spatial_threshold,
+        nee: true,
+        probe: None,
         peers: if cfg!(feature = "openpgl") {
             vec![false, true]
         } else {
@@ -102,6 +110,14 @@ fn parse() -> Result<Args, String> {
             "--out" => a.out = PathBuf::from(&value),
             "--threads" => a.threads = Some(number(&flag, &value)?),
             "--seed" => a.seed = number(&flag, &value)?,
+            "--probe" => a.probe = Some(PathBuf::from(value)),
+            "--nee" => {
+                a.nee = match value.as_str() {
+                    "on" => true,
+                    "off" => false,
+                    _ => return Err(format!("bad value for --nee: {value}")),
+                }
+            }
             "--cache" => a.cache = Some(PathBuf::from(&value)),
             "--width" => a.width = number(&flag, &value)?,
             "--height" => a.height = number(&flag, &value)?,
@@ -221,15 +237,23 @@ fn run() -> Result<(), String> {
             .build_global()
             .map_err(|e| e.to_string())?;
     }
-    let scene = Scene::by_name(&args.scene).ok_or(format!(
+    let mut scene = Scene::by_name(&args.scene).ok_or(format!(
         "unknown scene {}; the scenes are {:?}",
         args.scene,
         Scene::NAMES
     ))?;
+    scene.next_event = args.nee;
     let command_line: Vec<String> = std::env::args().skip(1).collect();
     let mut command = "cargo run --release -p sdguide-render".to_string();
     if !command_line.is_empty() {
         command = format!("{command} -- {}", command_line.join(" "));
+    }
+
+    if let Some(path) = &args.probe {
+        let field = GuidingField::load_from_path(path)
+            .map_err(|e| format!("cannot load the cache {}: {e}", path.display()))?;
+        print!("{}", probe_report(&scene, &field, &args));
+        return Ok(());
     }
 
     if args.make_reference {
@@ -330,6 +354,35 @@ fn run() -> Result<(), String> {
     Ok(())
 }
 
+/// The probe table: at the first surface behind each of nine pixels, where the trained guide's
+/// draws go, plain and times the clamped cosine.
+fn probe_report(scene: &Scene, field: &GuidingField, args: &Args) -> String {
+    const DRAWS: u32 = 100_000;
+    let aspect = args.width as f32 / args.height as f32;
+    let mut r = format!(
+        "# Probes of a trained field in `{}` ({DRAWS} draws per distribution and point)\n\n\
+         | film | position | normal | below surface: plain | times cosine | to a light: plain | \
+         times cosine |\n|---|---|---|---:|---:|---:|---:|\n",
+        scene.name
+    );
+    for p in sdguide_render::probe::probe(scene, field, aspect, DRAWS) {
+        let v = |v: glam::Vec3| format!("({:.2}, {:.2}, {:.2})", v.x, v.y, v.z);
+        let _ = writeln!(
+            r,
+            "| ({:.1}, {:.1}) | {} | {} | {:.1}% | {:.2}% | {:.1}% | {:.1}% |",
+            p.film.x,
+            p.film.y,
+            v(p.position),
+            v(p.normal),
+            100.0 * p.plain_below,
+            100.0 * p.surface_below,
+            100.0 * p.plain_to_light,
+            100.0 * p.surface_to_light
+        );
+    }
+    r
+}
+
 /// What the report says of the peer's wiring.
 #[cfg(feature = "openpgl")]
 const PEER_SETTINGS: &str = concat!(
@@ -358,8 +411,8 @@ fn report(
     let _ = writeln!(r, "# sdguide render: `{}`\n", scene.name);
     let _ = writeln!(
         r,
-        "{}×{}, {budget}{}, training share {}, guide probability {}, {} threads, seed {}. \
-         Command: `{command}`\n",
+        "{}×{}, {budget}{}, training share {}, guide probability {}, next-event estimation {}, \
+         {} threads, seed {}. Command: `{command}`\n",
         args.width,
         args.height,
         args.budget
@@ -368,6 +421,7 @@ fn report(
         args.budget.training_share,
         args.guide_probability
             .map_or("learned".to_string(), |p| format!("fixed at {p}")),
+        if args.nee { "on" } else { "off" },
         rayon::current_num_threads(),
         args.seed
     );

@@ -50,6 +50,10 @@ pub struct Scene {
     pub camera: Camera,
     /// Exposure applied before tone mapping (a scene property: how bright it is meant to look).
     pub exposure: f32,
+    /// Whether paths rendered in it sample the lights at every vertex (next-event estimation,
+    /// weighed by MIS against the scattering direction; on by default). Without it, light is
+    /// found only by the paths' own directions: what a guide has to learn is then all of it.
+    pub next_event: bool,
     bvh: Bvh,
     /// Emitting triangles, with the cumulative distribution that picks one ∝ area × luminance.
     lights: Vec<u32>,
@@ -177,6 +181,7 @@ impl SceneBuilder {
             materials: self.materials,
             camera,
             exposure,
+            next_event: true,
             bvh,
             lights,
             light_cdf,

@@ -1,13 +1,14 @@
 //! The white furnace: inside a closed, uniformly emitting, diffusely reflecting cube the radiance
 //! is `emission / (1 − albedo)` everywhere, so every pixel's expectation is known exactly. A
 //! render must converge to it with and without guiding — unbiasedness through the whole wiring
-//! (mixture sampling, its pdf in the estimator and in MIS, next-event estimation, Russian
-//! roulette, recording and refining).
+//! (mixture sampling with the surface-aware guide, its pdf in the estimator and in MIS,
+//! next-event estimation or none, Russian roulette, recording and refining).
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::{Guide, Guiding};
 use sdguide_render::render::{field_bounds, render_pass, training_pass};
+use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized};
 
 const ALBEDO: f32 = 0.3;
@@ -29,14 +30,18 @@ fn mean_and_error(image: &Image) -> (f64, f64) {
 }
 
 fn render_furnace(field: Option<Guide<'_>>) -> Image {
-    let scene = furnace(ALBEDO, EMISSION);
+    render_in(&furnace(ALBEDO, EMISSION), field, 7)
+}
+
+/// The mean of `SPP` samples per pixel of `scene`, guided by `field` (not recording).
+fn render_in(scene: &Scene, field: Option<Guide<'_>>, seed: u64) -> Image {
     let mut sum = Image::new(SIZE.0, SIZE.1);
     let guiding = field.map(|field| Guiding {
         field,
         record: false,
         guide_probability: None,
     });
-    render_pass(&scene, guiding, &mut sum, SPP, 7, 0);
+    render_pass(scene, guiding, &mut sum, SPP, seed, 0);
     sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
     sum
 }
@@ -99,6 +104,31 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
         assert_converges(
             &render_furnace(Some(Guide::Sdguide(&field))),
             &format!("{rule:?}"),
+        );
+    }
+}
+
+/// Without next-event estimation the emission a path hits counts in full (no MIS weight), and
+/// the surface-aware guide must still find all of it: guided and unguided, l1 and l2.
+#[test]
+fn furnace_without_next_event_estimation_converges_guided_and_not() {
+    let mut scene = furnace(ALBEDO, EMISSION);
+    scene.next_event = false;
+    assert_converges(&render_in(&scene, None, 9), "unguided, no NEE");
+    for rule in [LeafRule::L1, LeafRule::L2] {
+        let config = GuidingConfig {
+            rule,
+            spatial_threshold: 1000.0,
+            ..GuidingConfig::default()
+        };
+        let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
+        for pass in 0..5 {
+            training_pass(&scene, &mut field, SIZE, 1 << pass, 3, pass, None);
+        }
+        assert!(field.stats().spatial_leaves > 1);
+        assert_converges(
+            &render_in(&scene, Some(Guide::Sdguide(&field)), 9),
+            &format!("{rule:?}, no NEE"),
         );
     }
 }
