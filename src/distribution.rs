@@ -11,7 +11,7 @@ use crate::quadtree::{DirectionalTree, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTre
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use glam::{Vec2, Vec3};
 
-/// A piecewise-constant distribution over the sphere, borrowed from a [`GuidingField`].
+/// A piecewise-constant distribution over the sphere, borrowed from a [`GuidingField`](crate::GuidingField).
 ///
 /// Cheap to create and to copy; `sample` and `pdf` neither allocate nor lock.
 #[derive(Clone, Copy, Debug)]
@@ -69,7 +69,7 @@ impl<'a> DirectionalDistribution<'a> {
     /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
     /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and 0.95 (see
     /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from samples recorded
-    /// with [`Sample::with_mixture`].
+    /// with [`Sample::with_mixture`](crate::Sample::with_mixture).
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.guide_probability
