@@ -380,11 +380,7 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
             break;
         }
         let material = scene.material(&hit);
-        let normal = if hit.normal.dot(wo) >= 0.0 {
-            hit.normal
-        } else {
-            -hit.normal
-        };
+        let normal = hit.normal_toward(wo);
         let lookup = match guide {
             Some(g) if g.draws_lookup() => rng.next_f32(),
             _ => 0.0,

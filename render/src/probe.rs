@@ -43,11 +43,7 @@ pub fn probe(scene: &Scene, field: &GuidingField, aspect: f32, draws: u32) -> Ve
             let Some(hit) = scene.intersect(&ray) else {
                 continue;
             };
-            let normal = if hit.normal.dot(-ray.direction) >= 0.0 {
-                hit.normal
-            } else {
-                -hit.normal
-            };
+            let normal = hit.normal_toward(-ray.direction);
             let plain = field.distribution(hit.position);
             let surface = plain.at_surface(normal);
             let (mut below, mut light) = ([0u32; 2], [0u32; 2]);

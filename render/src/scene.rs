@@ -75,6 +75,18 @@ pub struct Hit {
     pub shape: u32,
 }
 
+impl Hit {
+    /// The normal on the side that `wo` (pointing away from the surface, toward the viewer)
+    /// leaves from: the shading normal of the two-sided surfaces here.
+    pub fn normal_toward(&self, wo: Vec3) -> Vec3 {
+        if self.normal.dot(wo) >= 0.0 {
+            self.normal
+        } else {
+            -self.normal
+        }
+    }
+}
+
 /// A point drawn on an emitter, seen from a shading point.
 #[derive(Clone, Copy, Debug)]
 pub struct LightSample {

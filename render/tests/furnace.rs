@@ -46,6 +46,20 @@ fn render_in(scene: &Scene, field: Option<Guide<'_>>, seed: u64) -> Image {
     sum
 }
 
+/// A field trained on `scene` with `rule`: five passes of 1, 2, …, 16 spp, cells split early.
+fn trained_in(scene: &Scene, rule: LeafRule) -> GuidingField {
+    let config = GuidingConfig {
+        rule,
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(field_bounds(scene), config).unwrap();
+    for pass in 0..5 {
+        training_pass(scene, &mut field, SIZE, 1 << pass, 3, pass, None);
+    }
+    field
+}
+
 fn assert_converges(image: &Image, what: &str) {
     // Paths are cut after 10 bounces: the part lost, albedo¹¹·L ≈ 2.5e-6, is far below the
     // statistical error.
@@ -82,15 +96,7 @@ fn a_small_furnace_converges_too() {
 fn guided_furnace_converges_to_the_analytic_radiance() {
     let scene = furnace(ALBEDO, EMISSION);
     for rule in [LeafRule::L1, LeafRule::L2] {
-        let config = GuidingConfig {
-            rule,
-            spatial_threshold: 1000.0,
-            ..GuidingConfig::default()
-        };
-        let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-        for pass in 0..5 {
-            training_pass(&scene, &mut field, SIZE, 1 << pass, 3, pass, None);
-        }
+        let field = trained_in(&scene, rule);
         let stats = field.stats();
         assert_eq!(stats.rejected.total(), 0, "{stats:?}");
         assert!(
@@ -116,15 +122,7 @@ fn furnace_without_next_event_estimation_converges_guided_and_not() {
     scene.next_event = false;
     assert_converges(&render_in(&scene, None, 9), "unguided, no NEE");
     for rule in [LeafRule::L1, LeafRule::L2] {
-        let config = GuidingConfig {
-            rule,
-            spatial_threshold: 1000.0,
-            ..GuidingConfig::default()
-        };
-        let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-        for pass in 0..5 {
-            training_pass(&scene, &mut field, SIZE, 1 << pass, 3, pass, None);
-        }
+        let field = trained_in(&scene, rule);
         assert!(field.stats().spatial_leaves > 1);
         assert_converges(
             &render_in(&scene, Some(Guide::Sdguide(&field)), 9),

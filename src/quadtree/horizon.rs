@@ -35,8 +35,8 @@
 //! coarse leaves too. A cell whose corners are all below ends the descent, even inside the
 //! guide's tree.
 
+use super::sampling::{place, unit};
 use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
-use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::FRAC_PI_4;
 
@@ -277,12 +277,6 @@ fn choose(p: [f32; 2], u: f32, cut: f32) -> usize {
     }
 }
 
-#[inline]
-#[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
-fn unit(x: f32) -> f32 {
-    x.max(0.0).min(ONE_MINUS_EPSILON)
-}
-
 impl SamplingTree {
     /// [`sample`](SamplingTree::sample) of the product with the clamped cosine about the unit
     /// normal `n`: the point, its density on the square, whether it may lie within rounding
@@ -304,14 +298,10 @@ impl SamplingTree {
                 break;
             }
         }
+        let (point, near_border) = place(u, a, w, at.cell, at.depth);
         let size = f32::from_bits((127 - at.depth) << 23);
-        let inv_size = f32::from_bits((127 + at.depth) << 23);
-        let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
-        let origin = Vec2::new(at.cell[0] as f32, at.cell[1] as f32) * size;
-        let margin = ROUND_TRIP_BOUND * inv_size;
-        let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
-        let centre = origin + Vec2::splat(0.5 * size);
-        (origin + local * size, pdf, near_border, centre)
+        let centre = (Vec2::new(at.cell[0] as f32, at.cell[1] as f32) + 0.5) * size;
+        (point, pdf, near_border, centre)
     }
 
     /// [`pdf`](SamplingTree::pdf) of the product with the clamped cosine about the unit
@@ -385,12 +375,7 @@ mod tests {
     fn the_corner_cosines_follow_the_exact_map() {
         let mut next = uniform(3);
         for _ in 0..2000 {
-            let n = Vec3::new(
-                next() as f32 - 0.5,
-                next() as f32 - 0.5,
-                next() as f32 - 0.5,
-            )
-            .normalize();
+            let n = random_normal(&mut next);
             let depth = (next() * 12.0) as u32;
             let side = 1u32 << depth;
             let cell = [
@@ -481,12 +466,20 @@ mod tests {
         out
     }
 
+    /// A random unit normal (not uniform over the sphere, which these tests do not need).
+    fn random_normal(next: &mut impl FnMut() -> f64) -> Vec3 {
+        loop {
+            let v = Vec3::new(next() as f32, next() as f32, next() as f32) * 2.0 - 1.0;
+            if let Some(n) = v.try_normalize() {
+                return n;
+            }
+        }
+    }
+
+    /// The axes, a diagonal, and two random normals.
     fn normals(next: &mut impl FnMut() -> f64) -> Vec<Vec3> {
         let mut out = vec![Vec3::Z, -Vec3::Z, Vec3::X, Vec3::new(0.0, 0.6, -0.8)];
-        while out.len() < 6 {
-            let v = Vec3::new(next() as f32, next() as f32, next() as f32) * 2.0 - 1.0;
-            out.extend(v.try_normalize());
-        }
+        out.extend([random_normal(next), random_normal(next)]);
         out
     }
 
@@ -578,17 +571,12 @@ mod tests {
     }
 
     #[test]
-    fn surface_sample_returns_the_pdf_of_its_point_and_stays_above() {
+    fn surface_sample_returns_the_pdf_of_its_point() {
         let mut next = uniform(9);
         for seed in 1..=4 {
             let tree = random_sampling_tree(seed);
             for _ in 0..20 {
-                let n = Vec3::new(
-                    next() as f32 - 0.5,
-                    next() as f32 - 0.5,
-                    next() as f32 - 0.5,
-                )
-                .normalize();
+                let n = random_normal(&mut next);
                 for _ in 0..2000 {
                     let u = Vec2::new(next() as f32, next() as f32);
                     let (s, pdf, near, _) = tree.sample_surface(n, u);

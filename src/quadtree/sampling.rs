@@ -61,8 +61,24 @@ fn pick(choice: usize, a: f32, b: f32) -> f32 {
 /// Clamps a sample coordinate into `[0, 1)`; NaN becomes 0 (which `clamp` would not do).
 #[inline]
 #[allow(clippy::manual_clamp, reason = "max/min map NaN to 0; clamp keeps NaN")]
-fn unit(x: f32) -> f32 {
+pub(super) fn unit(x: f32) -> f32 {
     x.max(0.0).min(ONE_MINUS_EPSILON)
+}
+
+/// Where `u` lands in the leaf `cell` at `depth` that a descent reached with the interval
+/// `[a, a + w)` of `u`: the point, placed uniformly in the leaf by `(u − a)/w`, and whether it
+/// may lie within rounding distance of the leaf's border (where the round trip through the
+/// sphere may move it into the neighbour).
+#[inline(always)]
+pub(super) fn place(u: Vec2, a: Vec2, w: Vec2, cell: [u32; 2], depth: u32) -> (Vec2, bool) {
+    // 2^∓depth from exponent bits (depth ≤ 24: both are normal f32), not `powi` calls.
+    let size = f32::from_bits((127 - depth) << 23);
+    let inv_size = f32::from_bits((127 + depth) << 23);
+    let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
+    let origin = Vec2::new(cell[0] as f32, cell[1] as f32) * size;
+    let margin = ROUND_TRIP_BOUND * inv_size;
+    let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
+    (origin + local * size, near_border)
 }
 
 /// Where [`SamplingTree::sample`] cuts one node's interval of `u`: the node's
@@ -179,14 +195,8 @@ impl SamplingTree {
                 c => node = usize::from(c),
             }
         }
-        // 2^∓depth from exponent bits (depth ≤ 20: both are normal f32), not `powi` calls.
-        let size = f32::from_bits((127 - depth) << 23);
-        let inv_size = f32::from_bits((127 + depth) << 23);
-        let local = Vec2::new(unit((u.x - a.x) / w.x), unit((u.y - a.y) / w.y));
-        let origin = Vec2::new(cell[0] as f32, cell[1] as f32) * size;
-        let margin = ROUND_TRIP_BOUND * inv_size;
-        let near_border = local.min_element() <= margin || local.max_element() >= 1.0 - margin;
-        (origin + local * size, pdf, near_border)
+        let (point, near_border) = place(u, a, w, cell, depth);
+        (point, pdf, near_border)
     }
 
     /// The density on the square at `s ∈ [0,1)²`.
