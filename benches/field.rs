@@ -14,7 +14,9 @@
 
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
-use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Refinement, Sample, SpatialFilter};
+use sdguide::{
+    DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample, SpatialFilter,
+};
 use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
 use std::hint::black_box;
 use std::sync::OnceLock;
@@ -122,6 +124,15 @@ fn bench_record(c: &mut Criterion) {
         .collect();
     g.bench_function("1-thread, with mixture terms", |b| {
         b.iter(|| field.record_all(black_box(&with_mixture)))
+    });
+    // The mixture rule looks up the guide's own pdf of each sample's direction (its field
+    // trains as L2's: the workload records no mixture terms).
+    let mixture_rule = trained_with(GuidingConfig {
+        rule: LeafRule::L2Mixture,
+        ..GuidingConfig::default()
+    });
+    g.bench_function("1-thread, with mixture terms, rule L2Mixture", |b| {
+        b.iter(|| mixture_rule.record_all(black_box(&with_mixture)))
     });
     g.bench_function("2-threads", |b| {
         b.iter(|| {

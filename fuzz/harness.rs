@@ -122,11 +122,7 @@ pub fn field_ops(data: &[u8]) {
 /// budget is at most 1 MiB so that inputs stay cheap); invalid ones are refused by `new`.
 fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
     let mut config = GuidingConfig {
-        rule: if b.u8()? & 1 == 0 {
-            LeafRule::L1
-        } else {
-            LeafRule::L2
-        },
+        rule: [LeafRule::L1, LeafRule::L2, LeafRule::L2Mixture][usize::from(b.u8()? % 3)],
         spatial_threshold: b.f32()?,
         subdivision_threshold: b.f32()?,
         max_directional_depth: u32::from(b.u8()?),

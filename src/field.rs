@@ -9,10 +9,11 @@ use crate::filter::hash_jitter;
 use crate::moments::weights;
 use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes};
 use crate::spatial::SpatialTree;
+use crate::sphere::INV_SPHERE_AREA;
 use crate::stats::RejectCounters;
 use crate::{
     Aabb, ConfigError, DirectionalCell, DirectionalDistribution, FieldStats, GuidingConfig,
-    Moments, RejectReason, Rejections, Sample, SpatialFilter,
+    LeafRule, Moments, RejectReason, Rejections, Sample, SpatialFilter,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -148,7 +149,6 @@ impl GuidingField {
         if !self.spatial.accepts(p) {
             return Err(RejectReason::OutOfBounds);
         }
-        let w = weights(sample.value, sample.pdf);
         // The sample's own leaf, and for the spatial filters its extent: one lookup.
         let (home, extent) = match self.config.spatial_filter {
             SpatialFilter::Nearest => (self.spatial.leaf_at(p), Vec3::ZERO),
@@ -157,12 +157,22 @@ impl GuidingField {
                 (l.leaf, l.bounds.extent())
             }
         };
+        let mut value = sample.value;
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
-            self.trees[home]
-                .selection
+            let tree = &self.trees[home];
+            tree.selection
                 .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
+            if self.config.rule == LeafRule::L2Mixture {
+                // f·sqrt(p_s·p_g)/q: the value whose L2 masses are optimal inside the mixture
+                // (see `LeafRule`); the tree's own pdf is the one the direction was guided with.
+                let p_g = f64::from(tree.sampling.pdf(square)) * f64::from(INV_SPHERE_AREA);
+                let v = f64::from(m.integrand) * (f64::from(m.guide_pdf) * p_g).sqrt()
+                    / f64::from(sample.pdf);
+                value = v.min(f64::from(f32::MAX)) as f32;
+            }
         }
+        let w = weights(value, sample.pdf);
         match self.config.spatial_filter {
             SpatialFilter::Nearest => self.insert_directional(home, square, w, true),
             SpatialFilter::Stochastic => {

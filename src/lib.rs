@@ -12,7 +12,8 @@
 //!
 //! ```text
 //!   record   render threads, &self, lock-free     Sample ─► filter ─► spatial leaf ─► quadtree leaf moments
-//!                                                  (mixture terms ─► the leaf's guide-selection sums)
+//!                                                  (mixture terms ─► the leaf's guide-selection sums;
+//!                                                   under L2Mixture also the value: f·sqrt(p_s·p_g)/q)
 //!   refine   between iterations, &mut self        (deferred box filter: pending quadrant sums ─► moments)
 //!                                                  moments ─► shrinkage ─► rule masses ─► sampling tree
 //!                                                  quadrant sums ─► split gains ─► new topology
@@ -49,7 +50,8 @@
 //!
 //! - [`sphere`]: the equal-area map between directions and the unit square.
 //! - `moments`: the per-cell sums `Σ v/p`, `Σ v²/p`, `n` and their lock-free accumulation.
-//! - `rule`: [`LeafRule`], how moments become leaf masses.
+//! - `rule`: [`LeafRule`], how moments become leaf masses, and the L2 rule inside the
+//!   guide–BSDF mixture.
 //! - `quadtree`: the double-buffered directional quadtree: `sampling` (what `sample` and `pdf`
 //!   descend), `recording` (what `record` adds to), `splat` (the directional box filter) and
 //!   `refine` (the next distribution and topology).

@@ -203,11 +203,12 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 1), &parts(&bytes)),
+        assemble((2, 2), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
-    // The same sections as a 2.0 file (2.1 only added a filter value this field does not use).
+    // The same sections as a 2.0 file (2.1 and 2.2 only added a filter value and a rule value
+    // this field does not use).
     let older = GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))).unwrap();
     assert_same(&field, &older);
     // A 2.7 file with an optional section this reader does not know, and a longer META.
@@ -228,7 +229,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 1)));
+            assert_eq!((found, supported), ((3, 0), (2, 2)));
         }
         other => panic!("{other:?}"),
     }
@@ -303,6 +304,12 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         ),
         "directional",
         "moments",
+    );
+    // META: a leaf rule this version does not define.
+    corrupt(
+        forge(&bytes, 1, 0, [7, 0, 0, 0]),
+        "meta",
+        "unknown leaf rule",
     );
     // META 1.1: a filter this version does not define, a negative prior.
     corrupt(
@@ -379,7 +386,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 1)));
+            assert_eq!((found, supported), ((1, 0), (2, 2)));
         }
         other => panic!("{other:?}"),
     }

@@ -2,7 +2,8 @@
 //! moment agrees with Monte Carlo, the l2 rule beats the l1 rule on every light field (clearly
 //! on the noisy ones), no density beats the oracle, the l2 density comes within 1.15× of it,
 //! refinement by variance gain beats refinement by flux share at equal node counts, and the
-//! learned guide-vs-BSDF selection beats the fixed ½.
+//! learned guide-vs-BSDF selection beats the fixed ½, and with a BSDF the mixture rule beats l1
+//! on the estimator a renderer computes (and l2 on three fields of four).
 //!
 //! Fixed seeds; a smaller budget than the harness's default (5 iterations from 100k samples),
 //! but for the distance to the oracle, which is a claim about the default budget. The harness's
@@ -281,5 +282,34 @@ fn the_learned_guide_probability_beats_a_fixed_half() {
         // fixed problem is `tests/selection.rs`.)
         assert!(s.best <= s.learned, "{}: {s:?}", field.name);
         assert!(s.learned < s.half, "{}: {s:?}", field.name);
+    }
+}
+
+#[test]
+#[ignore = "long statistical harness: cargo test --test quality -- --ignored (CI runs it)"]
+fn the_mixture_rule_beats_l1_everywhere_and_l2_but_on_the_noisy_sharp_lobe() {
+    for field in TestField::all() {
+        let field = field.with_bsdf();
+        // The exact variance of the estimator a renderer computes, f/q with each cell's
+        // learned guide probability, for a guide trained with each rule.
+        let learned = |rule| trained(&field, rule).1.selection.unwrap().learned;
+        let (l1, l2, mixture) = (
+            learned(LeafRule::L1),
+            learned(LeafRule::L2),
+            learned(LeafRule::L2Mixture),
+        );
+        eprintln!(
+            "{}: l1 {l1:.4}, l2 {l2:.4}, l2 mixture {mixture:.4}",
+            field.name
+        );
+        assert!(mixture < l1, "{}: {mixture} vs l1 {l1}", field.name);
+        // On the noisy sharp lobe the multiplicative update carries each iteration's noise
+        // into the next (docs/quality.md): there it stays within 15% of l2, elsewhere below.
+        let bound = if field.name == "sharp lobe + ambient, noisy" {
+            1.15
+        } else {
+            1.0
+        };
+        assert!(mixture < bound * l2, "{}: {mixture} vs l2 {l2}", field.name);
     }
 }

@@ -18,6 +18,12 @@
 #define SDG_RULE_L2 1
 
 /*
+ The L2 rule for the renderer's estimator inside the guide–BSDF mixture (samples recorded
+ with their mixture terms).
+ */
+#define SDG_RULE_L2_MIXTURE 2
+
+/*
  Filter: record into the cell containing the sample only.
  */
 #define SDG_FILTER_NEAREST 0
@@ -111,7 +117,7 @@ typedef struct sdg_field sdg_field;
  */
 typedef struct {
   /*
-   `SDG_RULE_L1` or `SDG_RULE_L2`.
+   `SDG_RULE_L1`, `SDG_RULE_L2` or `SDG_RULE_L2_MIXTURE`.
    */
   uint32_t rule;
   /*

@@ -69,6 +69,9 @@ pub enum sdg_status {
 pub const SDG_RULE_L1: u32 = 0;
 /// Leaf rule `L2`: the variance-optimal rule (the default).
 pub const SDG_RULE_L2: u32 = 1;
+/// The L2 rule for the renderer's estimator inside the guide–BSDF mixture (samples recorded
+/// with their mixture terms).
+pub const SDG_RULE_L2_MIXTURE: u32 = 2;
 
 /// Filter: record into the cell containing the sample only.
 pub const SDG_FILTER_NEAREST: u32 = 0;
@@ -119,7 +122,7 @@ impl From<Vec3> for sdg_vec3 {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sdg_config {
-    /// `SDG_RULE_L1` or `SDG_RULE_L2`.
+    /// `SDG_RULE_L1`, `SDG_RULE_L2` or `SDG_RULE_L2_MIXTURE`.
     pub rule: u32,
     /// `c`: spatial leaves split past `c·sqrt(2^k)` samples in iteration `k`.
     pub spatial_threshold: f32,
@@ -339,6 +342,7 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
             rule: match c.rule {
                 LeafRule::L1 => SDG_RULE_L1,
                 LeafRule::L2 => SDG_RULE_L2,
+                LeafRule::L2Mixture => SDG_RULE_L2_MIXTURE,
                 _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             spatial_threshold: c.spatial_threshold,
@@ -398,6 +402,7 @@ pub unsafe extern "C" fn sdg_field_create(
         let rule = match c.rule {
             SDG_RULE_L1 => LeafRule::L1,
             SDG_RULE_L2 => LeafRule::L2,
+            SDG_RULE_L2_MIXTURE => LeafRule::L2Mixture,
             other => return fail(sdg_status::Config, format!("unknown rule {other}")),
         };
         let config = GuidingConfig {

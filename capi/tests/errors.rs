@@ -205,6 +205,16 @@ fn non_finite_inputs_are_rejected_or_refused() {
             sdg_field_create(&config(), v(1.0, 1.0, 1.0), v(0.0, 0.0, 0.0), &mut out),
             sdg_status::Config
         );
+        // Every rule constant makes a field.
+        for rule in [SDG_RULE_L1, SDG_RULE_L2, SDG_RULE_L2_MIXTURE] {
+            let c = sdg_config { rule, ..config() };
+            assert_eq!(
+                sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+                sdg_status::Ok
+            );
+            sdg_field_destroy(out);
+            out = null_mut();
+        }
         // The deferred box is a directional filter only.
         let c = sdg_config {
             spatial_filter: SDG_FILTER_DEFERRED_BOX,

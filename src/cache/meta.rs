@@ -10,6 +10,7 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.u8(match c.rule {
         LeafRule::L1 => 0,
         LeafRule::L2 => 1,
+        LeafRule::L2Mixture => 2,
     });
     out.0.extend_from_slice(&[0; 3]);
     out.f32(c.spatial_threshold);
@@ -65,6 +66,7 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     let rule = match r.u8()? {
         0 => LeafRule::L1,
         1 => LeafRule::L2,
+        2 => LeafRule::L2Mixture,
         other => return Err(corrupt("meta", format!("unknown leaf rule {other}"))),
     };
     r.take(3)?;

@@ -51,8 +51,9 @@ pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
 pub const FORMAT_MAJOR: u16 = 2;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
-/// (the deferred box filter) to `META`; a 2.0 reader refuses files that use it.
-pub const FORMAT_MINOR: u16 = 1;
+/// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]); an older
+/// reader refuses files that use them.
+pub const FORMAT_MINOR: u16 = 2;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
