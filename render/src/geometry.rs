@@ -32,19 +32,30 @@ impl Ray {
     }
 
     /// The shadow ray from a surface point `p` (geometric normal `n`) toward a point `distance`
-    /// away along `direction`: it leaves `p` as [`Ray::leaving`] does and stops short of the
-    /// target, so the surface the target lies on does not block it.
+    /// away along `direction`: it leaves `p` as [`Ray::leaving`] does, is aimed again from
+    /// there at the target, and stops short of it, so neither surface blocks it.
     ///
-    /// The origin moves up to [`SURFACE_OFFSET`] toward the target, so the segment must end
-    /// earlier by more than that, whatever the distance. A relative margin alone,
-    /// `distance · (1 − ε)`, reaches the target whenever `distance < |cos θ| · SURFACE_OFFSET / ε`
-    /// (`θ` between `n` and `direction`): with both 10⁻⁴, for every light closer than a metre,
-    /// which then blocks its own shadow ray.
+    /// Aimed again, because an origin pushed off along `n` with the direction kept meets the
+    /// target's plane earlier by up to `SURFACE_OFFSET / |cos θ_L|` (`θ_L` the angle at the
+    /// target): a light that faces the receiver across a short, grazing gap (a ceiling over an
+    /// upward-facing lamp) would block half its own shadow rays. From the new origin the
+    /// target is exactly `|target − origin|` away, and the segment ends a relative 10⁻⁴ and
+    /// [`SURFACE_OFFSET`] before it.
     pub fn shadow(p: Vec3, n: Vec3, direction: Vec3, distance: f32) -> Self {
-        let ray = Ray::leaving(p, n, direction, 0.0);
+        let origin = Ray::leaving(p, n, direction, 0.0).origin;
+        let to_target = p + direction * distance - origin;
+        let length = to_target.length();
+        if length.is_nan() || length <= 0.0 {
+            return Ray {
+                origin,
+                direction,
+                t_max: 0.0,
+            };
+        }
         Ray {
-            t_max: distance * (1.0 - 1e-4) - 2.0 * SURFACE_OFFSET,
-            ..ray
+            origin,
+            direction: to_target / length,
+            t_max: length * (1.0 - 1e-4) - SURFACE_OFFSET,
         }
     }
 

@@ -3,7 +3,8 @@
 //! reports the error of each against a stored reference.
 //!
 //! ```text
-//! cargo run --release -p sdguide-render -- [--scene door] [--time 40] [--spp N] [--rule both]
+//! cargo run --release -p sdguide-render -- [--scene door|…|all] [--seeds 1] [--time 40] [--spp N]
+//!     [--rule both]
 //!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
@@ -23,14 +24,20 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|furnace] [--time SECONDS (0: none)] \
-[--spp N] [--rule l1|l2|both] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
+/// The scenes `--scene all` renders: every built-in scene with a stored reference.
+const ALL_SCENES: [&str; 4] = ["door", "glossy-box", "uplight", "covered"];
+
+const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|furnace|all] \
+[--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
 [--nee on|off] [--reference] [--probe CACHE]";
 
 struct Args {
-    scene: String,
+    /// The scenes to render, in order.
+    scenes: Vec<String>,
+    /// Runs per scene, from seeds `seed, seed + 1, …`.
+    seeds: u64,
     budget: Budget,
     rules: Vec<LeafRule>,
     out: PathBuf,
@@ -60,7 +67,8 @@ fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
 
 fn parse() -> Result<Args, String> {
     let mut a = Args {
-        scene: "door".into(),
+        scenes: vec!["door".into()],
+        seeds: 1,
         budget: Budget::default(),
         rules: vec![LeafRule::L1, LeafRule::L2],
         out: PathBuf::from("out/render"),
@@ -90,7 +98,19 @@ fn parse() -> Result<Args, String> {
         }
         let value = argv.next().ok_or(format!("{flag} needs a value"))?;
         match flag.as_str() {
-            "--scene" => a.scene = value.clone(),
+            "--scene" => {
+                a.scenes = if value == "all" {
+                    ALL_SCENES.iter().map(|s| s.to_string()).collect()
+                } else {
+                    vec![value.clone()]
+                }
+            }
+            "--seeds" => {
+                a.seeds = number(&flag, &value)?;
+                if !(1..=1000).contains(&a.seeds) {
+                    return Err(format!("bad value for --seeds: {value}"));
+                }
+            }
             "--time" => {
                 let secs: f32 = number(&flag, &value)?;
                 if !(secs.is_finite() && (0.0..=1e6).contains(&secs)) {
@@ -100,11 +120,16 @@ fn parse() -> Result<Args, String> {
             }
             "--spp" => a.budget.spp = Some(number(&flag, &value)?),
             "--rule" => {
-                a.rules = match value.as_str() {
-                    "l1" => vec![LeafRule::L1],
-                    "l2" => vec![LeafRule::L2],
-                    "both" => vec![LeafRule::L1, LeafRule::L2],
-                    _ => return Err(format!("bad value for --rule: {value}")),
+                a.rules = Vec::new();
+                for rule in value.split(',') {
+                    a.rules.extend_from_slice(match rule {
+                        "l1" => &[LeafRule::L1][..],
+                        "l2" => &[LeafRule::L2],
+                        "l2m" => &[LeafRule::L2Mixture],
+                        "both" => &[LeafRule::L1, LeafRule::L2],
+                        "all" => &[LeafRule::L1, LeafRule::L2, LeafRule::L2Mixture],
+                        _ => return Err(format!("bad value for --rule: {value}")),
+                    });
                 }
             }
             "--out" => a.out = PathBuf::from(&value),
@@ -190,6 +215,7 @@ fn run_method(
     scene: &Scene,
     method: Method,
     args: &Args,
+    seed: u64,
     cache: Option<GuidingField>,
 ) -> Result<Outcome, String> {
     let bar = progress_bar(method.name());
@@ -202,7 +228,7 @@ fn run_method(
         method,
         (args.width, args.height),
         args.budget,
-        args.seed,
+        seed,
         Training {
             config: &GuidingConfig {
                 refinement: args.refinement,
@@ -237,12 +263,15 @@ fn run() -> Result<(), String> {
             .build_global()
             .map_err(|e| e.to_string())?;
     }
-    let mut scene = Scene::by_name(&args.scene).ok_or(format!(
-        "unknown scene {}; the scenes are {:?}",
-        args.scene,
-        Scene::NAMES
-    ))?;
-    scene.next_event = args.nee;
+    let mut scenes = Vec::new();
+    for name in &args.scenes {
+        let mut scene = Scene::by_name(name).ok_or(format!(
+            "unknown scene {name}; the scenes are {:?} (or all)",
+            Scene::NAMES
+        ))?;
+        scene.next_event = args.nee;
+        scenes.push(scene);
+    }
     let command_line: Vec<String> = std::env::args().skip(1).collect();
     let mut command = "cargo run --release -p sdguide-render".to_string();
     if !command_line.is_empty() {
@@ -250,45 +279,118 @@ fn run() -> Result<(), String> {
     }
 
     if let Some(path) = &args.probe {
+        let [scene] = &scenes[..] else {
+            return Err("--probe needs a single scene".into());
+        };
         let field = GuidingField::load_from_path(path)
             .map_err(|e| format!("cannot load the cache {}: {e}", path.display()))?;
-        print!("{}", probe_report(&scene, &field, &args));
+        print!("{}", probe_report(scene, &field, &args));
         return Ok(());
     }
 
     if args.make_reference {
-        // Streams of its own, independent of every run compared with it.
-        let args = Args {
-            seed: reference::seed(args.seed),
-            ..args
-        };
-        let outcome = run_method(&scene, Method::Guided(LeafRule::L2), &args, None)?;
-        let path = reference::store(
-            &reference::directory(),
-            &scene,
-            &outcome.image,
-            outcome.spp,
-            args.seed,
-            &command,
-        )
-        .map_err(|e| e.to_string())?;
-        println!(
-            "reference of `{}`: {} spp (+{} training) in {:.0} s, written to {}",
-            scene.name,
-            outcome.spp,
-            outcome.training_spp,
-            outcome.total_time.as_secs_f32(),
-            path.display()
-        );
+        for scene in &scenes {
+            make_reference(scene, &args, &command)?;
+        }
         return Ok(());
     }
+    if args.cache.is_some() && scenes.len() > 1 {
+        return Err("--cache needs a single scene".into());
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| e.to_string())?;
 
+    let mut methods = vec![Method::Unguided];
+    methods.extend(args.rules.iter().map(|&r| Method::Guided(r)));
+    #[cfg(feature = "openpgl")]
+    methods.extend(
+        args.peers
+            .iter()
+            .map(|&cosine_product| Method::OpenPgl { cosine_product }),
+    );
+    let mut report = header(&args, &command);
+    let mut summaries = Vec::new();
+    for scene in &scenes {
+        let mut runs = Vec::new();
+        for seed in args.seed..args.seed + args.seeds {
+            runs.push(render_scene(scene, &methods, &args, seed)?);
+        }
+        report += &scene_report(scene, &args, &runs);
+        summaries.push((scene.name.clone(), runs));
+    }
+    if summaries.len() > 1 || args.seeds > 1 {
+        report += &summary(&summaries);
+    }
+    report += &footnotes();
+    print!("{report}");
+    std::fs::write(args.out.join("report.md"), &report).map_err(|e| e.to_string())
+}
+
+fn make_reference(scene: &Scene, args: &Args, command: &str) -> Result<(), String> {
+    // Streams of its own, independent of every run compared with it.
+    let seed = reference::seed(args.seed);
+    let outcome = run_method(scene, Method::Guided(LeafRule::L2), args, seed, None)?;
+    let path = reference::store(
+        &reference::directory(),
+        scene,
+        &outcome.image,
+        outcome.spp,
+        seed,
+        command,
+    )
+    .map_err(|e| e.to_string())?;
+    println!(
+        "reference of `{}`: {} spp (+{} training) in {:.0} s, written to {}",
+        scene.name,
+        outcome.spp,
+        outcome.training_spp,
+        outcome.total_time.as_secs_f32(),
+        path.display()
+    );
+    Ok(())
+}
+
+/// One seed's renders of a scene, one per method, and each one's error.
+struct Run {
+    seed: u64,
+    reference: Option<reference::Description>,
+    outcomes: Vec<Rendered>,
+}
+
+/// One method's render, and its error against the reference.
+struct Rendered {
+    outcome: Outcome,
+    /// Whether its field came from `--cache`.
+    reused: bool,
+    /// relMSE, and the image mean's deviation in standard errors.
+    error: Option<(f64, f64)>,
+}
+
+impl Run {
+    /// Method `i`'s (relMSE, relMSE × spp, time per spp), each over unguided's.
+    fn ratios(&self, i: usize) -> Option<(f64, f64, f64)> {
+        let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
+        let cost = o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12);
+        match (self.outcomes[i].error, self.outcomes[0].error) {
+            // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
+            (Some((e, _)), Some((e0, _))) => Some((
+                e / e0,
+                (e * o.spp as f64) / (e0 * base.spp.max(1) as f64),
+                cost,
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// Renders `scene` with every method from `seed`, writing each image (and trained cache) and
+/// the comparison sheet to the output directory.
+fn render_scene(scene: &Scene, methods: &[Method], args: &Args, seed: u64) -> Result<Run, String> {
     let reference = match reference::load(
         &reference::directory(),
-        &scene,
+        scene,
         args.width,
         args.height,
-        args.seed,
+        seed,
     ) {
         Ok(found) => Some(found),
         Err(e) => {
@@ -304,25 +406,22 @@ fn run() -> Result<(), String> {
         ),
         None => None,
     };
-    std::fs::create_dir_all(&args.out).map_err(|e| e.to_string())?;
-
-    let mut methods = vec![Method::Unguided];
-    methods.extend(args.rules.iter().map(|&r| Method::Guided(r)));
-    #[cfg(feature = "openpgl")]
-    methods.extend(
-        args.peers
-            .iter()
-            .map(|&cosine_product| Method::OpenPgl { cosine_product }),
-    );
+    let suffix = if args.seeds > 1 {
+        format!("-seed{seed}")
+    } else {
+        String::new()
+    };
     let mut outcomes = Vec::new();
-    for &method in &methods {
+    for &method in methods {
         let reuse = match (method, &cache) {
             (Method::Guided(rule), Some(c)) if c.config().rule == rule => cache.take(),
             _ => None,
         };
         let reused = reuse.is_some();
-        let outcome = run_method(&scene, method, &args, reuse)?;
-        let stem = args.out.join(format!("{}-{}", scene.name, method.name()));
+        let outcome = run_method(scene, method, args, seed, reuse)?;
+        let stem = args
+            .out
+            .join(format!("{}-{}{suffix}", scene.name, method.name()));
         outcome
             .image
             .write_png(&stem.with_extension("png"), scene.exposure)
@@ -334,24 +433,29 @@ fn run() -> Result<(), String> {
                 .save_to_path(&path)
                 .map_err(|e| format!("cannot save the cache {}: {e}", path.display()))?;
         }
-        outcomes.push((outcome, reused));
+        let error = reference.as_ref().map(|(img, _)| {
+            (
+                outcome.image.rel_mse(img),
+                outcome.image.mean_deviation(img),
+            )
+        });
+        outcomes.push(Rendered {
+            outcome,
+            reused,
+            error,
+        });
     }
-
-    let report = report(&scene, &args, &command, &outcomes, reference.as_ref());
-    print!("{report}");
-    std::fs::write(args.out.join("report.md"), &report).map_err(|e| e.to_string())?;
     if let Some((reference, _)) = &reference {
-        let images: Vec<&Image> = outcomes.iter().map(|(o, _)| &o.image).collect();
+        let images: Vec<&Image> = outcomes.iter().map(|o| &o.outcome.image).collect();
         let (w, h, sheet) = side_by_side(reference, &images, scene.exposure);
-        write_png(
-            &args.out.join(format!("{}-compare.png", scene.name)),
-            w,
-            h,
-            &sheet,
-        )
-        .map_err(|e| e.to_string())?;
+        let path = args.out.join(format!("{}-compare{suffix}.png", scene.name));
+        write_png(&path, w, h, &sheet).map_err(|e| e.to_string())?;
     }
-    Ok(())
+    Ok(Run {
+        seed,
+        reference: reference.map(|(_, d)| d),
+        outcomes,
+    })
 }
 
 /// The probe table: at the first surface behind each of nine pixels, where the trained guide's
@@ -396,23 +500,23 @@ const PEER_SETTINGS: &str = concat!(
 #[cfg(not(feature = "openpgl"))]
 const PEER_SETTINGS: &str = "";
 
-fn report(
-    scene: &Scene,
-    args: &Args,
-    command: &str,
-    outcomes: &[(Outcome, bool)],
-    reference: Option<&(Image, reference::Description)>,
-) -> String {
+/// The report's title and settings.
+fn header(args: &Args, command: &str) -> String {
     let mut r = String::new();
     let budget = match args.budget.time {
         Some(t) => format!("{:.0} s per method", t.as_secs_f32()),
         None => "no time limit".into(),
     };
-    let _ = writeln!(r, "# sdguide render: `{}`\n", scene.name);
+    let names: Vec<String> = args.scenes.iter().map(|s| format!("`{s}`")).collect();
+    let seeds = match args.seeds {
+        1 => format!("seed {}", args.seed),
+        n => format!("seeds {}–{}", args.seed, args.seed + n - 1),
+    };
+    let _ = writeln!(r, "# sdguide render: {}\n", names.join(", "));
     let _ = writeln!(
         r,
         "{}×{}, {budget}{}, training share {}, guide probability {}, next-event estimation {}, \
-         {} threads, seed {}. Command: `{command}`\n",
+         {} threads, {seeds}. Command: `{command}`\n",
         args.width,
         args.height,
         args.budget
@@ -423,10 +527,21 @@ fn report(
             .map_or("learned".to_string(), |p| format!("fixed at {p}")),
         if args.nee { "on" } else { "off" },
         rayon::current_num_threads(),
-        args.seed
     );
-    match reference {
-        Some((_, d)) => {
+    if !args.peers.is_empty() {
+        let _ = writeln!(r, "{}\n", PEER_SETTINGS);
+    }
+    r
+}
+
+/// A scene's section: its reference, and one table per seed.
+fn scene_report(scene: &Scene, args: &Args, runs: &[Run]) -> String {
+    let mut r = String::new();
+    if args.scenes.len() > 1 {
+        let _ = writeln!(r, "## `{}`\n", scene.name);
+    }
+    match runs.first().and_then(|run| run.reference.as_ref()) {
+        Some(d) => {
             let _ = writeln!(
                 r,
                 "Reference: {} spp, fingerprint {:016x} (matches the scene), rendered from \
@@ -443,22 +558,24 @@ fn report(
             );
         }
     }
-    if !args.peers.is_empty() {
-        let _ = writeln!(r, "{}\n", PEER_SETTINGS);
+    for run in runs {
+        if runs.len() > 1 {
+            let _ = writeln!(r, "Seed {}:\n", run.seed);
+        }
+        r += &seed_table(run);
     }
-    let _ = writeln!(
-        r,
+    r
+}
+
+fn seed_table(run: &Run) -> String {
+    let mut r = String::from(
         "| method | spp | training | total time | relMSE | relMSE vs unguided | per sample vs \
          unguided | time per spp vs unguided | mean vs reference |\n\
-         |---|---:|---|---:|---:|---:|---:|---:|---:|"
+         |---|---:|---|---:|---:|---:|---:|---:|---:|\n",
     );
-    let errors: Vec<Option<f64>> = outcomes
-        .iter()
-        .map(|(o, _)| reference.map(|(img, _)| o.image.rel_mse(img)))
-        .collect();
-    let base = &outcomes[0].0;
-    for ((o, reused), error) in outcomes.iter().zip(&errors) {
-        let training = match (o.method, reused) {
+    for (i, rendered) in run.outcomes.iter().enumerate() {
+        let o = &rendered.outcome;
+        let training = match (o.method, rendered.reused) {
             (Method::Unguided, _) => "—".to_string(),
             (_, true) => "from cache".to_string(),
             _ => format!(
@@ -467,19 +584,16 @@ fn report(
                 o.training_spp
             ),
         };
-        // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
-        let (error, ratio, per_sample) = match (error, errors[0]) {
-            (Some(e), Some(e0)) => (
-                format!("{e:.5}"),
-                format!("{:.3}×", e / e0),
-                format!("{:.3}×", (e * o.spp as f64) / (e0 * base.spp.max(1) as f64)),
-            ),
-            _ => ("—".into(), "—".into(), "—".into()),
-        };
+        let base = &run.outcomes[0].outcome;
         let cost = o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12);
-        let deviation = reference.map_or("—".to_string(), |(img, _)| {
-            format!("{:+.1}σ", o.image.mean_deviation(img))
-        });
+        let (error, deviation) = match rendered.error {
+            Some((e, z)) => (format!("{e:.5}"), format!("{z:+.1}σ")),
+            None => ("—".into(), "—".into()),
+        };
+        let (ratio, per_sample) = match run.ratios(i) {
+            Some((ratio, per_sample, _)) => (format!("{ratio:.3}×"), format!("{per_sample:.3}×")),
+            None => ("—".into(), "—".into()),
+        };
         let _ = writeln!(
             r,
             "| {} | {} | {training} | {:.1} s | {error} | {ratio} | {per_sample} | {cost:.2}× | \
@@ -489,18 +603,65 @@ fn report(
             o.total_time.as_secs_f32(),
         );
     }
-    let _ = writeln!(
-        r,
-        "\nPer sample: relMSE × spp over unguided's. Time per spp: the final render's, training \
-         excluded. Mean vs reference: the image mean's distance from the reference's in \
-         standard errors of the pixel differences (|z| ≤ 3 for an unbiased render)."
-    );
-    let _ = writeln!(
-        r,
-        "\nImages: `{0}-<method>.png` (tone-mapped) and `.exr` (linear); `{0}-compare.png`: \
-         reference and methods on top, per-pixel relative squared error below (log scale, \
-         10⁻⁴ black to 10 yellow; the ramp is under the reference).",
-        scene.name
-    );
+    r.push('\n');
     r
+}
+
+/// Mean and range over the seeds of each scene's ratios to unguided, per method.
+fn summary(scenes: &[(String, Vec<Run>)]) -> String {
+    let seeds = scenes.first().map_or(0, |(_, runs)| runs.len());
+    let mut r = format!(
+        "## Summary over {seeds} seed{}: mean (min–max) of the ratios to unguided\n\n\
+         | scene | method | relMSE vs unguided | per sample vs unguided | time per spp vs \
+         unguided |\n|---|---|---:|---:|---:|\n",
+        if seeds == 1 { "" } else { "s" }
+    );
+    let spread = |v: &[f64]| {
+        if v.is_empty() {
+            return "—".to_string();
+        }
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        if v.len() == 1 {
+            format!("{mean:.3}×")
+        } else {
+            format!("{mean:.3}× ({lo:.3}–{hi:.3})")
+        }
+    };
+    for (name, runs) in scenes {
+        let methods = runs.first().map_or(0, |run| run.outcomes.len());
+        for i in 1..methods {
+            let ratios: Vec<(f64, f64, f64)> =
+                runs.iter().filter_map(|run| run.ratios(i)).collect();
+            let column = |k: usize| {
+                let v: Vec<f64> = ratios.iter().map(|t| [t.0, t.1, t.2][k]).collect();
+                spread(&v)
+            };
+            let _ = writeln!(
+                r,
+                "| {name} | {} | {} | {} | {} |",
+                runs[0].outcomes[i].outcome.method.name(),
+                column(0),
+                column(1),
+                column(2)
+            );
+        }
+    }
+    r.push('\n');
+    r
+}
+
+fn footnotes() -> String {
+    "Per sample: relMSE × spp over unguided's. Time per spp: the final render's, training \
+     excluded. Mean vs reference: the image mean's distance from the reference's in standard \
+     errors of the pixel differences (|z| ≤ 3 for an unbiased render).\n\n\
+     Images: `<scene>-<method>.png` (tone-mapped) and `.exr` (linear), `-seed<N>` added when \
+     several seeds run; `<scene>-compare.png`: reference and methods on top, per-pixel relative \
+     squared error below (log scale, 10⁻⁴ black to 10 yellow; the ramp is under the \
+     reference).\n"
+        .to_string()
 }

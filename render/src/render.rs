@@ -153,6 +153,7 @@ impl Method {
             Method::Unguided => "unguided",
             Method::Guided(LeafRule::L1) => "guided-l1",
             Method::Guided(LeafRule::L2) => "guided-l2",
+            Method::Guided(LeafRule::L2Mixture) => "guided-l2m",
             Method::Guided(_) => "guided",
             #[cfg(feature = "openpgl")]
             Method::OpenPgl {

@@ -209,13 +209,14 @@ impl Scene {
             "door" => Some(crate::scenes::door()),
             "glossy-box" => Some(crate::scenes::glossy_box()),
             "uplight" => Some(crate::scenes::uplight()),
+            "covered" => Some(crate::scenes::covered()),
             "furnace" => Some(crate::scenes::furnace(0.5, 1.0)),
             _ => None,
         }
     }
 
     /// Names accepted by [`Scene::by_name`].
-    pub const NAMES: [&'static str; 4] = ["door", "glossy-box", "uplight", "furnace"];
+    pub const NAMES: [&'static str; 5] = ["door", "glossy-box", "uplight", "covered", "furnace"];
 
     /// The closest hit along `ray`.
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {

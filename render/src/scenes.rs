@@ -147,13 +147,22 @@ pub fn uplight() -> Scene {
     b.build("uplight", camera, 1.0)
 }
 
+/// Registers the materials of a Cornell box's coloured walls, red (left) and green (right), in
+/// this order.
+fn cornell_walls(b: &mut SceneBuilder) -> [u16; 2] {
+    [
+        Material::diffuse(Vec3::new(0.63, 0.07, 0.05)),
+        Material::diffuse(Vec3::new(0.12, 0.45, 0.09)),
+    ]
+    .map(|m| b.material(m))
+}
+
 /// "Glossy box": a Cornell-style box with a glossy floor and two glossy spheres of different
 /// roughness, lit by a small (0.15 m square) ceiling light. Open at the front.
 pub fn glossy_box() -> Scene {
     let mut b = SceneBuilder::default();
     let white = b.material(Material::diffuse(Vec3::splat(0.73)));
-    let red = b.material(Material::diffuse(Vec3::new(0.63, 0.07, 0.05)));
-    let green = b.material(Material::diffuse(Vec3::new(0.12, 0.45, 0.09)));
+    let [red, green] = cornell_walls(&mut b);
     let floor = b.material(Material::glossy(Vec3::splat(0.35), Vec3::splat(0.4), 0.1));
     let gold = b.material(Material::glossy(
         Vec3::splat(0.02),
@@ -181,6 +190,55 @@ pub fn glossy_box() -> Scene {
         fov_degrees: 40.0,
     };
     b.build("glossy-box", camera, 1.0)
+}
+
+/// "Covered": a Cornell box whose only light sits on top of a panel hung under
+/// the ceiling, facing up. Only the ceiling and the top of the walls see the light; the rest of
+/// the room is lit by the pool it throws on the ceiling, which next-event estimation cannot
+/// reach (the emitter is hidden from every point below the panel) and BSDF sampling finds only
+/// by chance. Open at the front.
+///
+/// Room `x, y, z ∈ [0, 1]`, metres; the panel is 0.3 m square, 15 cm under the ceiling; the
+/// emitter is 0.24 m square, 2 mm above the panel.
+pub fn covered() -> Scene {
+    let mut b = SceneBuilder::default();
+    let white = b.material(Material::diffuse(Vec3::splat(0.75)));
+    let [red, green] = cornell_walls(&mut b);
+    let panel = b.material(Material::diffuse(Vec3::splat(0.5)));
+    let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::splat(200.0)));
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    b.quad(Vec3::ZERO, x, z, white)
+        .quad(y, z, x, white)
+        .quad(z, y, x, white)
+        .quad(Vec3::ZERO, z, y, red)
+        .quad(x, y, z, green);
+    // The panel, and the emitter on it facing the ceiling.
+    b.cuboid(
+        Vec3::new(0.35, 0.83, 0.35),
+        Vec3::new(0.65, 0.85, 0.65),
+        false,
+        panel,
+    )
+    .quad(Vec3::new(0.38, 0.852, 0.38), z * 0.24, x * 0.24, light);
+    // Two boxes, as in the Cornell box.
+    b.cuboid(
+        Vec3::new(0.15, 0.0, 0.5),
+        Vec3::new(0.45, 0.6, 0.8),
+        false,
+        white,
+    )
+    .cuboid(
+        Vec3::new(0.55, 0.0, 0.2),
+        Vec3::new(0.85, 0.3, 0.5),
+        false,
+        white,
+    );
+    let camera = Camera {
+        eye: Vec3::new(0.5, 0.5, -1.25),
+        target: Vec3::new(0.5, 0.5, 0.5),
+        fov_degrees: 40.0,
+    };
+    b.build("covered", camera, 2.0)
 }
 
 /// The white furnace: the inside of a closed cube whose every face emits `emission` and

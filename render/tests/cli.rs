@@ -1,0 +1,70 @@
+//! The `render` command: several seeds and scenes in one run, one report, and bad options
+//! refused with a message.
+
+use std::path::Path;
+use std::process::Command;
+
+fn render(out: &Path, args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_render"))
+        .args([
+            "--time", "0", "--spp", "2", "--width", "16", "--height", "12",
+        ])
+        .args(["--peer", "none", "--out"])
+        .arg(out)
+        .args(args)
+        .output()
+        .expect("the render binary runs")
+}
+
+#[test]
+fn several_seeds_write_every_image_and_one_summary() {
+    let out = std::env::temp_dir().join(format!("sdguide-cli-seeds-{}", std::process::id()));
+    let run = render(
+        &out,
+        &[
+            "--scene", "covered", "--seeds", "2", "--seed", "5", "--rule", "l2m",
+        ],
+    );
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("seeds 5–6"), "{report}");
+    assert!(
+        report.contains("Seed 5:") && report.contains("Seed 6:"),
+        "{report}"
+    );
+    assert!(report.contains("## Summary over 2 seeds"), "{report}");
+    assert!(report.contains("| covered | guided-l2m |"), "{report}");
+    for seed in [5, 6] {
+        for method in ["unguided", "guided-l2m"] {
+            let stem = format!("covered-{method}-seed{seed}");
+            assert!(out.join(format!("{stem}.exr")).is_file(), "{stem}");
+        }
+        assert!(
+            out.join(format!("covered-guided-l2m-seed{seed}.sdgc"))
+                .is_file()
+        );
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn bad_options_are_refused_with_a_message() {
+    let out = std::env::temp_dir().join(format!("sdguide-cli-bad-{}", std::process::id()));
+    for args in [
+        &["--seeds", "0"][..],
+        &["--scene", "nowhere"],
+        &["--rule", "l3"],
+        &["--scene", "all", "--probe", "x.sdgc"],
+        &["--scene", "all", "--cache", "x.sdgc"],
+    ] {
+        let run = render(&out, args);
+        assert!(!run.status.success(), "{args:?}");
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.starts_with("render: "), "{args:?}: {stderr}");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
