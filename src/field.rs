@@ -8,6 +8,7 @@
 use crate::filter::hash_jitter;
 use crate::moments::weights;
 use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes};
+use crate::rule::mixture_value;
 use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
 use crate::stats::RejectCounters;
@@ -164,12 +165,9 @@ impl GuidingField {
             tree.selection
                 .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
             if self.config.rule == LeafRule::L2Mixture {
-                // f·sqrt(p_s·p_g)/q: the value whose L2 masses are optimal inside the mixture
-                // (see `LeafRule`); the tree's own pdf is the one the direction was guided with.
+                // The tree's own pdf is the one the direction was guided with.
                 let p_g = f64::from(tree.sampling.pdf(square)) * f64::from(INV_SPHERE_AREA);
-                let v = f64::from(m.integrand) * (f64::from(m.guide_pdf) * p_g).sqrt()
-                    / f64::from(sample.pdf);
-                value = v.min(f64::from(f32::MAX)) as f32;
+                value = mixture_value(m.integrand, m.guide_pdf, p_g, sample.pdf);
             }
         }
         let w = weights(value, sample.pdf);

@@ -80,3 +80,12 @@ impl LeafRule {
         }
     }
 }
+
+/// The value [`LeafRule::L2Mixture`] records for a sample: `f·sqrt(p_s·p_g)/q`, from its
+/// integrand `f`, the pdf `p_s` the guide drew it with, the tree's own pdf `p_g` of the
+/// direction and the mixture pdf `q` (saturating at `f32::MAX`).
+#[inline]
+pub(crate) fn mixture_value(integrand: f32, guide_pdf: f32, tree_pdf: f64, pdf: f32) -> f32 {
+    let v = f64::from(integrand) * (f64::from(guide_pdf) * tree_pdf).sqrt() / f64::from(pdf);
+    v.min(f64::from(f32::MAX)) as f32
+}

@@ -3,9 +3,8 @@
 //! reports the error of each against a stored reference.
 //!
 //! ```text
-//! cargo run --release -p sdguide-render -- [--scene door|…|all] [--seeds 1] [--time 40] [--spp N]
-//!     [--rule both]
-//!     [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
+//! cargo run --release -p sdguide-render -- [--scene door|…|all] [--seeds 1] [--time 40]
+//!     [--spp N] [--rule both] [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
 //!     [--nee on|off]
@@ -28,7 +27,8 @@ use std::time::Duration;
 const ALL_SCENES: [&str; 4] = ["door", "glossy-box", "uplight", "covered"];
 
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|furnace|all] \
-[--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] [--out DIR] [--threads N] [--seed N] [--cache FILE] \
+[--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] \
+[--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
 [--nee on|off] [--reference] [--probe CACHE]";
@@ -366,16 +366,21 @@ struct Rendered {
 }
 
 impl Run {
+    /// Method `i`'s time per spp over unguided's.
+    fn cost(&self, i: usize) -> f64 {
+        let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
+        o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12)
+    }
+
     /// Method `i`'s (relMSE, relMSE × spp, time per spp), each over unguided's.
     fn ratios(&self, i: usize) -> Option<(f64, f64, f64)> {
         let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
-        let cost = o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12);
         match (self.outcomes[i].error, self.outcomes[0].error) {
             // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
             (Some((e, _)), Some((e0, _))) => Some((
                 e / e0,
                 (e * o.spp as f64) / (e0 * base.spp.max(1) as f64),
-                cost,
+                self.cost(i),
             )),
             _ => None,
         }
@@ -584,8 +589,7 @@ fn seed_table(run: &Run) -> String {
                 o.training_spp
             ),
         };
-        let base = &run.outcomes[0].outcome;
-        let cost = o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12);
+        let cost = run.cost(i);
         let (error, deviation) = match rendered.error {
             Some((e, z)) => (format!("{e:.5}"), format!("{z:+.1}σ")),
             None => ("—".into(), "—".into()),
@@ -637,17 +641,16 @@ fn summary(scenes: &[(String, Vec<Run>)]) -> String {
         for i in 1..methods {
             let ratios: Vec<(f64, f64, f64)> =
                 runs.iter().filter_map(|run| run.ratios(i)).collect();
-            let column = |k: usize| {
-                let v: Vec<f64> = ratios.iter().map(|t| [t.0, t.1, t.2][k]).collect();
-                spread(&v)
+            let column = |of: fn(&(f64, f64, f64)) -> f64| {
+                spread(&ratios.iter().map(of).collect::<Vec<_>>())
             };
             let _ = writeln!(
                 r,
                 "| {name} | {} | {} | {} | {} |",
                 runs[0].outcomes[i].outcome.method.name(),
-                column(0),
-                column(1),
-                column(2)
+                column(|t| t.0),
+                column(|t| t.1),
+                column(|t| t.2)
             );
         }
     }

@@ -3,14 +3,14 @@
 //! `q` is that density (and positive on B); the test checks it on 200 equal-area regions and on
 //! at vertices of a trained field, with a 5σ bound from the sample variance.
 
+mod common;
+
+use common::trained_door;
 use glam::Vec3;
-use sdguide::{GuidingConfig, GuidingField};
 use sdguide_render::geometry::Frame;
 use sdguide_render::integrator::VertexSampler;
 use sdguide_render::material::Material;
-use sdguide_render::render::{field_bounds, training_pass};
 use sdguide_render::rng::Rng;
-use sdguide_render::scenes::door;
 use std::f64::consts::PI;
 
 const Z_BINS: usize = 10;
@@ -78,11 +78,7 @@ fn bsdf_sampling_pdf_matches_its_draws() {
 
 #[test]
 fn guided_mixture_pdf_matches_its_draws() {
-    let scene = door();
-    let mut field = GuidingField::new(field_bounds(&scene), GuidingConfig::default()).unwrap();
-    for pass in 0..4 {
-        training_pass(&scene, &mut field, (48, 36), 2 << pass, 11, pass, None);
-    }
+    let (_, field) = trained_door();
     let floor = Material::glossy(Vec3::splat(0.3), Vec3::splat(0.35), 0.12);
     let wall = Material::diffuse(Vec3::splat(0.7));
     // A point on the camera room's floor and one on its back wall; the guide is mixed in with
@@ -106,6 +102,8 @@ fn guided_mixture_pdf_matches_its_draws() {
 fn open_pgl_mixture_pdf_matches_its_draws() {
     use sdguide_render::integrator::Guide;
     use sdguide_render::openpgl;
+    use sdguide_render::render::{field_bounds, training_pass};
+    use sdguide_render::scenes::door;
     let scene = door();
     let floor = Material::glossy(Vec3::splat(0.3), Vec3::splat(0.35), 0.12);
     let wall = Material::diffuse(Vec3::splat(0.7));

@@ -2,18 +2,14 @@
 //! sends at most 5% of its draws below the surface at every probe, where the plain guide sends
 //! far more.
 
-use sdguide::{GuidingConfig, GuidingField};
+mod common;
+
+use common::trained_door;
 use sdguide_render::probe::probe;
-use sdguide_render::render::{field_bounds, training_pass};
-use sdguide_render::scenes::door;
 
 #[test]
 fn the_surface_aware_guide_keeps_its_draws_above_the_surface() {
-    let scene = door();
-    let mut field = GuidingField::new(field_bounds(&scene), GuidingConfig::default()).unwrap();
-    for pass in 0..4 {
-        training_pass(&scene, &mut field, (48, 36), 2 << pass, 11, pass, None);
-    }
+    let (scene, field) = trained_door();
     let draws = 20_000;
     let probes = probe(&scene, &field, 4.0 / 3.0, draws);
     assert_eq!(probes.len(), 9);
