@@ -1,14 +1,16 @@
 //! The path tracer, and the reference for wiring sdguide into one.
 //!
-//! A unidirectional path tracer with next-event estimation (unless the scene turns it off) and
-//! multiple importance sampling (power heuristic) and Russian roulette. With guiding, every scattering direction is drawn
-//! from the **one-sample mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the
-//! field's distribution at the vertex and `a` its learned guide probability. The wiring points
-//! are marked `GUIDING:` below; there are four:
+//! A unidirectional path tracer with next-event estimation (unless the scene turns it off),
+//! multiple importance sampling (power heuristic) and Russian roulette; smooth dielectrics are
+//! delta vertices, passed through without a light sample or a guide lookup. With guiding, every
+//! scattering direction is drawn from the **one-sample mixture**
+//! `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's distribution at the vertex
+//! and `a` its learned guide probability. The wiring points are marked `GUIDING:` below; there
+//! are four:
 //!
 //! 1. at a vertex, look up the distribution once, as its product with the clamped cosine about
-//!    the shading normal (`field.distribution(x).at_surface(n)`: every material here reflects
-//!    only, so nothing below the surface is worth a sample);
+//!    the shading normal (`field.distribution(x).at_surface(n)`: every guided material here
+//!    reflects only, so nothing below the surface is worth a sample);
 //! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
 //!    and for every next-event direction, since MIS must weigh the strategy actually used;
 //! 3. keep, per vertex, what the path later adds to the radiance arriving along the sampled
@@ -299,9 +301,12 @@ impl PathLog {
         self.len += 1;
     }
 
-    /// The last vertex's ray hit something `distance` away.
+    /// The path hit something `distance` past its last vertex (or past a dielectric after it):
+    /// the first hit after a vertex is the one its direction reaches.
     fn reached(&mut self, distance: f32) {
-        if let Some(v) = self.vertices[..self.len].last_mut() {
+        if let Some(v) = self.vertices[..self.len].last_mut()
+            && v.distance.is_infinite()
+        {
             v.distance = distance;
         }
     }
@@ -381,6 +386,24 @@ pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: 
         }
         let material = scene.material(&hit);
         let normal = hit.normal_toward(wo);
+        if material.is_dielectric() {
+            // A delta vertex: no light sample reaches through it and no guide can sample it, so
+            // the path goes on in the one direction Fresnel picks, with weight 1, and the vertex
+            // is not recorded; the vertex before it records the radiance arriving through the
+            // glass, which is what a guide there learns to aim at.
+            let frame = Frame::new(normal);
+            let entering = hit.normal.dot(wo) > 0.0;
+            let local = material.sample_dielectric(frame.to_local(wo), entering, rng.next_f32());
+            // What the path finds next was reached by no strategy a light sample competes with.
+            previous = None;
+            ray = Ray::leaving(
+                hit.position,
+                hit.normal,
+                frame.to_world(local),
+                f32::INFINITY,
+            );
+            continue;
+        }
         let lookup = match guide {
             Some(g) if g.draws_lookup() => rng.next_f32(),
             _ => 0.0,

@@ -3,7 +3,9 @@
 //!
 //! The flow: a [`scene::Scene`] (built in code, [`scenes`]) is rendered by
 //! [`render::render`] in passes of tiles; every path is traced by [`integrator::radiance`],
-//! which is the reference for wiring sdguide into a path tracer. Images are compared with
+//! which is the reference for wiring sdguide into a path tracer. A guided render's training
+//! passes are not thrown away: [`passes`] combines them with the final one by inverse
+//! variance. Images are compared with
 //! [`image::Image::rel_mse`] against a stored reference ([`reference`](mod@reference)). The
 //! `render` binary runs the comparison (see `docs/render.md`).
 
@@ -18,6 +20,7 @@ pub mod integrator;
 pub mod material;
 #[cfg(feature = "openpgl")]
 pub mod openpgl;
+pub mod passes;
 pub mod probe;
 pub mod reference;
 pub mod render;

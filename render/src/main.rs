@@ -24,9 +24,9 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 /// The scenes `--scene all` renders: every built-in scene with a stored reference.
-const ALL_SCENES: [&str; 4] = ["door", "glossy-box", "uplight", "covered"];
+const ALL_SCENES: [&str; 5] = ["door", "glossy-box", "uplight", "covered", "caustic"];
 
-const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|furnace|all] \
+const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caustic|furnace|all] \
 [--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] \
 [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
@@ -361,8 +361,11 @@ struct Rendered {
     outcome: Outcome,
     /// Whether its field came from `--cache`.
     reused: bool,
-    /// relMSE, and the image mean's deviation in standard errors.
+    /// The final image's relMSE, and its mean's deviation in standard errors.
     error: Option<(f64, f64)>,
+    /// relMSE of the image combined with the training passes (equal to the final image's for
+    /// unguided).
+    combined_error: Option<f64>,
 }
 
 impl Run {
@@ -372,13 +375,18 @@ impl Run {
         o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12)
     }
 
-    /// Method `i`'s (relMSE, relMSE × spp, time per spp), each over unguided's.
+    /// Method `i`'s (relMSE of the combined image, relMSE × spp of the final one, time per
+    /// spp), each over unguided's.
     fn ratios(&self, i: usize) -> Option<(f64, f64, f64)> {
         let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
-        match (self.outcomes[i].error, self.outcomes[0].error) {
+        let combined = (
+            self.outcomes[i].combined_error,
+            self.outcomes[0].combined_error,
+        );
+        match (self.outcomes[i].error, self.outcomes[0].error, combined) {
             // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
-            (Some((e, _)), Some((e0, _))) => Some((
-                e / e0,
+            (Some((e, _)), Some((e0, _)), (Some(c), Some(c0))) => Some((
+                c / c0,
                 (e * o.spp as f64) / (e0 * base.spp.max(1) as f64),
                 self.cost(i),
             )),
@@ -444,10 +452,14 @@ fn render_scene(scene: &Scene, methods: &[Method], args: &Args, seed: u64) -> Re
                 outcome.image.mean_deviation(img),
             )
         });
+        let combined_error = reference
+            .as_ref()
+            .map(|(img, _)| outcome.combined.rel_mse(img));
         outcomes.push(Rendered {
             outcome,
             reused,
             error,
+            combined_error,
         });
     }
     if let Some((reference, _)) = &reference {
@@ -574,9 +586,9 @@ fn scene_report(scene: &Scene, args: &Args, runs: &[Run]) -> String {
 
 fn seed_table(run: &Run) -> String {
     let mut r = String::from(
-        "| method | spp | training | total time | relMSE | relMSE vs unguided | per sample vs \
-         unguided | time per spp vs unguided | mean vs reference |\n\
-         |---|---:|---|---:|---:|---:|---:|---:|---:|\n",
+        "| method | spp | training | total time | relMSE | with training passes | relMSE vs \
+         unguided | per sample vs unguided | time per spp vs unguided | mean vs reference |\n\
+         |---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (i, rendered) in run.outcomes.iter().enumerate() {
         let o = &rendered.outcome;
@@ -594,14 +606,17 @@ fn seed_table(run: &Run) -> String {
             Some((e, z)) => (format!("{e:.5}"), format!("{z:+.1}σ")),
             None => ("—".into(), "—".into()),
         };
+        let combined = rendered
+            .combined_error
+            .map_or("—".into(), |e| format!("{e:.5}"));
         let (ratio, per_sample) = match run.ratios(i) {
             Some((ratio, per_sample, _)) => (format!("{ratio:.3}×"), format!("{per_sample:.3}×")),
             None => ("—".into(), "—".into()),
         };
         let _ = writeln!(
             r,
-            "| {} | {} | {training} | {:.1} s | {error} | {ratio} | {per_sample} | {cost:.2}× | \
-             {deviation} |",
+            "| {} | {} | {training} | {:.1} s | {error} | {combined} | {ratio} | {per_sample} | \
+             {cost:.2}× | {deviation} |",
             o.method.name(),
             o.spp,
             o.total_time.as_secs_f32(),
@@ -659,8 +674,10 @@ fn summary(scenes: &[(String, Vec<Run>)]) -> String {
 }
 
 fn footnotes() -> String {
-    "Per sample: relMSE × spp over unguided's. Time per spp: the final render's, training \
-     excluded. Mean vs reference: the image mean's distance from the reference's in standard \
+    "relMSE: the final render's. With training passes: the final render and the training \
+     passes combined by inverse variance; relMSE vs unguided compares these, what each \
+     method's whole budget bought. Per sample: the final render's relMSE × spp over \
+     unguided's. Time per spp: the final render's, training excluded. Mean vs reference: the image mean's distance from the reference's in standard \
      errors of the pixel differences (|z| ≤ 3 for an unbiased render).\n\n\
      Images: `<scene>-<method>.png` (tone-mapped) and `.exr` (linear), `-seed<N>` added when \
      several seeds run; `<scene>-compare.png`: reference and methods on top, per-pixel relative \

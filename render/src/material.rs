@@ -1,14 +1,16 @@
-//! Materials: a Lambertian base plus an optional rough (GGX) specular layer, and an emission.
+//! Materials: a Lambertian base plus an optional rough (GGX) specular layer, and an emission;
+//! or a smooth dielectric (glass), which reflects and refracts in one direction each.
 //!
 //! Everything is in the local shading frame, `z` along the normal, both directions pointing away
-//! from the surface; `wo` toward the viewer, `wi` toward the light. Surfaces are two-sided (the
-//! integrator flips the normal to the viewer's side).
+//! from the surface; `wo` toward the viewer, `wi` toward the light. Opaque surfaces are
+//! two-sided (the integrator flips the normal to the viewer's side); a dielectric's shape must
+//! be closed with its normals outward, so that a hit knows whether the ray enters or leaves.
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_1_PI, PI};
 
 /// A surface's reflectance and emission.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, PartialEq)]
 pub struct Material {
     /// Lambertian albedo.
     pub diffuse: Vec3,
@@ -18,6 +20,25 @@ pub struct Material {
     pub roughness: f32,
     /// Radiance emitted on the side the shape's normal points to (zero for none).
     pub emission: Vec3,
+    /// Index of refraction of a smooth dielectric inside the shape (air outside); zero for an
+    /// opaque surface, whose reflectance the fields above give.
+    pub ior: f32,
+}
+
+impl std::fmt::Debug for Material {
+    /// The fields of an opaque surface, and `ior` for a dielectric only: a scene's fingerprint is
+    /// its description printed, and an opaque scene's stays what it was before dielectrics.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Material");
+        d.field("diffuse", &self.diffuse)
+            .field("specular", &self.specular)
+            .field("roughness", &self.roughness)
+            .field("emission", &self.emission);
+        if self.is_dielectric() {
+            d.field("ior", &self.ior);
+        }
+        d.finish()
+    }
 }
 
 /// A direction drawn from a BSDF: the local direction and the full pdf of drawing it.
@@ -42,7 +63,23 @@ impl Material {
             specular: Vec3::ZERO,
             roughness: 1.0,
             emission: Vec3::ZERO,
+            ior: 0.0,
         }
+    }
+
+    /// Smooth glass of index of refraction `ior` (1.5 for window glass), clear: it reflects
+    /// and transmits everything, in the proportions Fresnel's equations give.
+    pub fn glass(ior: f32) -> Self {
+        Material {
+            ior,
+            ..Material::diffuse(Vec3::ZERO)
+        }
+    }
+
+    /// Whether this is a smooth dielectric: its scattering is a delta distribution (two
+    /// directions), which [`Material::sample_dielectric`] draws and no other method evaluates.
+    pub fn is_dielectric(&self) -> bool {
+        self.ior > 0.0
     }
 
     /// A Lambertian base under a rough specular layer.
@@ -52,6 +89,7 @@ impl Material {
             specular,
             roughness,
             emission: Vec3::ZERO,
+            ior: 0.0,
         }
     }
 
@@ -75,9 +113,10 @@ impl Material {
         }
     }
 
-    /// The BSDF value `f(wo, wi)` (cosine not included).
+    /// The BSDF value `f(wo, wi)` (cosine not included); zero for a dielectric, whose delta
+    /// lobes no direction drawn elsewhere hits.
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
+        if wo.z <= 0.0 || wi.z <= 0.0 || self.is_dielectric() {
             return Vec3::ZERO;
         }
         let mut f = self.diffuse * FRAC_1_PI;
@@ -94,7 +133,7 @@ impl Material {
 
     /// The solid-angle pdf with which [`Material::sample`] draws `wi`.
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
+        if wo.z <= 0.0 || wi.z <= 0.0 || self.is_dielectric() {
             return 0.0;
         }
         let ps = self.specular_probability();
@@ -111,7 +150,7 @@ impl Material {
     /// diffuse lobe, the GGX normal distribution for the specular one), with `u` uniform in
     /// `[0, 1)³`. `None` when the draw leaves the hemisphere.
     pub fn sample(&self, wo: Vec3, lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        if wo.z <= 0.0 {
+        if wo.z <= 0.0 || self.is_dielectric() {
             return None;
         }
         let wi = if lobe < self.specular_probability() {
@@ -129,6 +168,47 @@ impl Material {
         let pdf = self.pdf(wo, wi);
         (pdf > 0.0).then_some(BsdfSample { wi, pdf })
     }
+}
+
+impl Material {
+    /// Draws the direction a dielectric scatters `wo` into (`wo.z > 0`; `entering` when `wo`
+    /// lies outside the shape): the mirror direction with the Fresnel reflectance `F`, else the
+    /// refracted one (Snell's law), with `u` uniform in `[0, 1)`. Chosen in proportion to what
+    /// each carries, the path's weight `f·|cos|/pdf` is 1 either way, and the returned
+    /// direction is all the caller needs.
+    ///
+    /// The radiance scaling by `(η_i/η_t)²` on refraction is left out: it cancels on every path
+    /// that enters the glass and leaves it again, and the camera, every emitter and every other
+    /// surface of the scenes here lie outside it.
+    pub fn sample_dielectric(&self, wo: Vec3, entering: bool, u: f32) -> Vec3 {
+        let eta = if entering { self.ior } else { 1.0 / self.ior };
+        let cos_i = wo.z.clamp(0.0, 1.0);
+        match refracted_cosine(cos_i, eta) {
+            Some(cos_t) if u >= fresnel_dielectric(cos_i, eta) => {
+                Vec3::new(-wo.x / eta, -wo.y / eta, -cos_t)
+            }
+            _ => Vec3::new(-wo.x, -wo.y, wo.z),
+        }
+    }
+}
+
+/// The cosine of the refracted direction for incidence `cos_i` (`≥ 0`) on an interface of
+/// relative index `eta = η_t/η_i`; `None` past the critical angle (total internal reflection).
+fn refracted_cosine(cos_i: f32, eta: f32) -> Option<f32> {
+    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
+    (sin2_t < 1.0).then(|| (1.0 - sin2_t).sqrt())
+}
+
+/// Fresnel reflectance of a smooth dielectric interface for unpolarized light, incidence
+/// `cos_i` (`≥ 0`), relative index `eta = η_t/η_i`: the mean of the two polarizations'
+/// reflectances, 1 under total internal reflection.
+pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
+    let Some(cos_t) = refracted_cosine(cos_i, eta) else {
+        return 1.0;
+    };
+    let parallel = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let perpendicular = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (parallel * parallel + perpendicular * perpendicular)
 }
 
 /// The GGX normal distribution `D(h)` for `cos θ_h` and `α²`.

@@ -4,6 +4,7 @@
 
 use crate::image::Image;
 use crate::integrator::{Guide, Guiding, radiance};
+use crate::passes::{PassImage, combine};
 use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
@@ -27,7 +28,40 @@ pub fn render_pass(
     seed: u64,
     pass: u32,
 ) {
-    let (width, height) = (sum.width, sum.height);
+    let size = (sum.width, sum.height);
+    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l| {
+        sum.pixels[pixel] += l;
+    });
+}
+
+/// [`render_pass`] into a [`PassImage`], which also keeps each pixel's squared luminance (for
+/// the pass's variance).
+pub fn render_pass_image(
+    scene: &Scene,
+    guiding: Option<Guiding<'_>>,
+    image: &mut PassImage,
+    spp: u32,
+    seed: u64,
+    pass: u32,
+) {
+    let size = (image.sum.width, image.sum.height);
+    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l| {
+        image.add(pixel, l);
+    });
+    image.spp += spp;
+}
+
+/// Renders `spp` samples of every pixel of a `width × height` image and hands each sample to
+/// `add` with its pixel index, in a fixed order.
+fn render_samples(
+    scene: &Scene,
+    guiding: Option<Guiding<'_>>,
+    (width, height): (usize, usize),
+    spp: u32,
+    seed: u64,
+    pass: u32,
+    mut add: impl FnMut(usize, Vec3),
+) {
     let aspect = width as f32 / height as f32;
     // One random stream per pixel and pass: the key `pass·2³² + pixel`, salted by the seed.
     // Salting with a pseudo-random function of the seed (not the seed itself) keeps renders with
@@ -39,12 +73,11 @@ pub fn render_pass(
     let rendered: Vec<Vec<Vec3>> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
-            let mut out = Vec::with_capacity(TILE * TILE);
+            let mut out = Vec::with_capacity(TILE * TILE * spp as usize);
             for y in y0..(y0 + TILE).min(height) {
                 for x in x0..(x0 + TILE).min(width) {
                     let pixel = (y * width + x) as u64;
                     let mut rng = Rng::new(salt ^ ((pass as u64) << 32 | pixel));
-                    let mut c = Vec3::ZERO;
                     for _ in 0..spp {
                         let film = (Vec2::new(x as f32, y as f32) + rng.next_vec2())
                             / Vec2::new(width as f32, height as f32);
@@ -52,21 +85,20 @@ pub fn render_pass(
                         // A NaN or infinite path would poison the pixel; none should occur, and
                         // a debug build says so.
                         debug_assert!(l.is_finite(), "non-finite radiance {l}");
-                        if l.is_finite() {
-                            c += l;
-                        }
+                        out.push(if l.is_finite() { l } else { Vec3::ZERO });
                     }
-                    out.push(c);
                 }
             }
             out
         })
         .collect();
     for (&(x0, y0), tile) in tiles.iter().zip(rendered) {
-        let mut values = tile.into_iter();
+        let mut samples = tile.into_iter();
         for y in y0..(y0 + TILE).min(height) {
             for x in x0..(x0 + TILE).min(width) {
-                sum.pixels[y * width + x] += values.next().unwrap_or_default();
+                for _ in 0..spp {
+                    add(y * width + x, samples.next().unwrap_or_default());
+                }
             }
         }
     }
@@ -102,9 +134,10 @@ impl Trainable for crate::openpgl::Guide {
 }
 
 /// One training pass: renders `spp` samples per pixel at `size`, recording every path into
-/// `field` (the image is discarded), then refines the field. Training passes draw from random
-/// streams of their own, numbered by `iteration`; `guide_probability` fixes the guide's share
-/// (`None`: the field's learned one, or the peer's fixed one).
+/// `field`, then refines the field; returns the pass's image (an unbiased estimate, for
+/// [`combine`]). Training passes draw from random streams of their own, numbered by
+/// `iteration`; `guide_probability` fixes the guide's share (`None`: the field's learned one,
+/// or the peer's fixed one).
 pub fn training_pass(
     scene: &Scene,
     field: &mut impl Trainable,
@@ -113,22 +146,23 @@ pub fn training_pass(
     seed: u64,
     iteration: u32,
     guide_probability: Option<f32>,
-) {
+) -> PassImage {
     let guiding = Guiding {
         field: field.guide(),
         record: true,
         guide_probability,
     };
-    let mut scratch = Image::new(width, height);
-    render_pass(
+    let mut image = PassImage::new(width, height);
+    render_pass_image(
         scene,
         Some(guiding),
-        &mut scratch,
+        &mut image,
         spp,
         seed,
         TRAINING_PASS | iteration,
     );
     field.refine();
+    image
 }
 
 /// A rendering method.
@@ -197,6 +231,9 @@ pub struct Outcome {
     pub method: Method,
     /// The final image (average of the final render's samples).
     pub image: Image,
+    /// The final image and the training passes' combined by inverse variance: what the
+    /// method's whole budget bought (the final image for unguided and a reused cache).
+    pub combined: Image,
     /// Samples per pixel of the final render.
     pub spp: u32,
     /// Samples per pixel spent on training.
@@ -274,7 +311,7 @@ pub fn render(
     let mut field = None;
     #[cfg(feature = "openpgl")]
     let mut peer = None;
-    let mut trained = (0, Duration::ZERO);
+    let mut trained = Trained::default();
     match method {
         Method::Unguided => {}
         Method::Guided(rule) => {
@@ -300,7 +337,11 @@ pub fn render(
             peer = Some(new);
         }
     }
-    let (training_spp, training_time) = trained;
+    let Trained {
+        spp: training_spp,
+        time: training_time,
+        mut passes,
+    } = trained;
     let guide = field.as_ref().map(Guide::Sdguide);
     #[cfg(feature = "openpgl")]
     let guide = guide.or(peer.as_ref().map(Guide::OpenPgl));
@@ -309,32 +350,42 @@ pub fn render(
         record: false,
         guide_probability: guiding.guide_probability,
     });
-    let mut sum = Image::new(width, height);
-    let mut spp = 0u32;
+    let mut image = PassImage::new(width, height);
     loop {
         let done = match (budget.time, budget.spp) {
-            (Some(t), cap) => start.elapsed() >= t || cap.is_some_and(|n| spp >= n),
-            (None, Some(n)) => spp >= n,
+            (Some(t), cap) => start.elapsed() >= t || cap.is_some_and(|n| image.spp >= n),
+            (None, Some(n)) => image.spp >= n,
             (None, None) => true,
         };
         if done {
             break;
         }
-        render_pass(scene, guiding, &mut sum, 1, seed, spp);
-        spp += 1;
-        progress("rendering", fraction(spp), spp);
+        let pass = image.spp;
+        render_pass_image(scene, guiding, &mut image, 1, seed, pass);
+        progress("rendering", fraction(image.spp), image.spp);
     }
-    let scale = 1.0 / spp.max(1) as f32;
-    sum.pixels.iter_mut().for_each(|p| *p *= scale);
+    let spp = image.spp;
+    let final_image = image.mean();
+    passes.push(image);
+    let combined = combine(&passes).unwrap_or_else(|| final_image.clone());
     Ok(Outcome {
         method,
-        image: sum,
+        image: final_image,
+        combined,
         spp,
         training_spp,
         training_time,
         total_time: start.elapsed(),
         field,
     })
+}
+
+/// What training produced: samples per pixel, time, and the passes' images.
+#[derive(Default)]
+struct Trained {
+    spp: u32,
+    time: Duration,
+    passes: Vec<PassImage>,
 }
 
 /// The training schedule every guided method follows, whichever its field.
@@ -347,7 +398,7 @@ struct Schedule {
 }
 
 impl Schedule {
-    /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp and time. With a
+    /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp, time and images. With a
     /// time budget, passes continue while the next one — twice the samples, so about twice the
     /// time — still fits in the training share (at most 2¹⁶ − 1 spp).
     fn train(
@@ -355,13 +406,13 @@ impl Schedule {
         scene: &Scene,
         field: &mut impl Trainable,
         progress: &dyn Fn(u32, u32),
-    ) -> (u32, Duration) {
+    ) -> Trained {
         let passes = if self.budget.time.is_some() {
             16
         } else {
             self.budget.training_iterations
         };
-        let (mut spp_total, mut last) = (0, Duration::ZERO);
+        let (mut spp_total, mut last, mut images) = (0, Duration::ZERO, Vec::new());
         for iteration in 0..passes {
             if let Some(t) = self.budget.time
                 && self.start.elapsed() + 2 * last > t.mul_f32(self.budget.training_share)
@@ -370,7 +421,7 @@ impl Schedule {
             }
             let began = Instant::now();
             let spp = 1 << iteration;
-            training_pass(
+            images.push(training_pass(
                 scene,
                 field,
                 self.size,
@@ -378,11 +429,15 @@ impl Schedule {
                 self.seed,
                 iteration,
                 self.guide_probability,
-            );
+            ));
             spp_total += spp;
             last = began.elapsed();
             progress(iteration + 1, spp_total);
         }
-        (spp_total, self.start.elapsed())
+        Trained {
+            spp: spp_total,
+            time: self.start.elapsed(),
+            passes: images,
+        }
     }
 }

@@ -38,7 +38,7 @@ impl Camera {
 /// A scene ready to render.
 #[derive(Clone, Debug)]
 pub struct Scene {
-    /// The scene's name (`door`, `glossy-box`, `uplight`, `furnace`).
+    /// The scene's name (one of [`Scene::NAMES`], or a test scene's).
     pub name: String,
     /// The shapes.
     pub shapes: Vec<Shape>,
@@ -210,13 +210,21 @@ impl Scene {
             "glossy-box" => Some(crate::scenes::glossy_box()),
             "uplight" => Some(crate::scenes::uplight()),
             "covered" => Some(crate::scenes::covered()),
+            "caustic" => Some(crate::scenes::caustic()),
             "furnace" => Some(crate::scenes::furnace(0.5, 1.0)),
             _ => None,
         }
     }
 
     /// Names accepted by [`Scene::by_name`].
-    pub const NAMES: [&'static str; 5] = ["door", "glossy-box", "uplight", "covered", "furnace"];
+    pub const NAMES: [&'static str; 6] = [
+        "door",
+        "glossy-box",
+        "uplight",
+        "covered",
+        "caustic",
+        "furnace",
+    ];
 
     /// The closest hit along `ray`.
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {

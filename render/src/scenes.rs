@@ -241,6 +241,65 @@ pub fn covered() -> Scene {
     b.build("covered", camera, 2.0)
 }
 
+/// "Caustic": a Cornell box lit by a ceiling lamp under a clear glass cover, with a glass
+/// sphere on the floor. Every path from the lamp to a diffuse surface passes through glass
+/// (light → glass → diffuse → camera, a caustic path): next-event estimation cannot connect
+/// through it, so the whole room — the direct light on the walls and the floor, and the
+/// focused caustic the sphere throws beside itself — is found only by scattered directions
+/// that happen to cross the cover and reach the small lamp behind it. A guide learns those
+/// directions; unguided path tracing finds them by chance. Open at the front.
+///
+/// Room `x, y, z ∈ [0, 1]`, metres; the lamp is 10 cm square, facing down 1 cm under the
+/// ceiling, at `x = 0.3, z = 0.6`, inside a glass box (index 1.5) 16 cm square and 4.5 cm deep;
+/// the sphere's radius is 0.16 m, index of refraction 1.5.
+pub fn caustic() -> Scene {
+    let mut b = SceneBuilder::default();
+    let white = b.material(Material::diffuse(Vec3::splat(0.75)));
+    let [red, green] = cornell_walls(&mut b);
+    let glass = b.material(Material::glass(1.5));
+    let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::splat(150.0)));
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    b.quad(Vec3::ZERO, x, z, white)
+        .quad(y, z, x, white)
+        .quad(z, y, x, white)
+        .quad(Vec3::ZERO, z, y, red)
+        .quad(x, y, z, green);
+    // The lamp, facing down, and its cover around it.
+    b.quad(Vec3::new(0.25, 0.99, 0.55), x * 0.1, z * 0.1, light)
+        .cuboid(
+            Vec3::new(0.22, 0.95, 0.52),
+            Vec3::new(0.38, 0.995, 0.68),
+            false,
+            glass,
+        );
+    b.sphere(Vec3::new(0.6, 0.16, 0.42), 0.16, glass);
+    let camera = Camera {
+        eye: Vec3::new(0.5, 0.5, -1.25),
+        target: Vec3::new(0.5, 0.45, 0.5),
+        fov_degrees: 40.0,
+    };
+    b.build("caustic", camera, 1.0)
+}
+
+/// The white furnace of [`furnace`] with a glass sphere (index of refraction 1.5, radius 0.35)
+/// at its centre, in the camera's view. A lossless dielectric in an isotropic radiance field
+/// leaves the field as it is, so the expectation is still `emission / (1 − albedo)`: a render
+/// that converges to it checks that the dielectric conserves energy and that paths through it
+/// are weighed right.
+pub fn glass_furnace(albedo: f32, emission: f32) -> Scene {
+    let mut b = SceneBuilder::default();
+    let m = b.material(Material::diffuse(Vec3::splat(albedo)).emitting(Vec3::splat(emission)));
+    let glass = b.material(Material::glass(1.5));
+    b.cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), true, m)
+        .sphere(Vec3::new(0.25, 0.1, 0.6), 0.35, glass);
+    let camera = Camera {
+        eye: Vec3::new(0.1, 0.2, -0.3),
+        target: Vec3::new(0.4, 0.1, 1.0),
+        fov_degrees: 70.0,
+    };
+    b.build("glass-furnace", camera, 1.0)
+}
+
 /// The white furnace: the inside of a closed cube whose every face emits `emission` and
 /// reflects diffusely with `albedo`. The radiance is the same everywhere and in every direction,
 /// `L = emission / (1 − albedo)`, whatever the estimator, so a render must converge to it.

@@ -38,6 +38,8 @@ fn several_seeds_write_every_image_and_one_summary() {
     );
     assert!(report.contains("## Summary over 2 seeds"), "{report}");
     assert!(report.contains("| covered | guided-l2m |"), "{report}");
+    // Every table has the column of the images combined with their training passes.
+    assert!(report.contains("| with training passes |"), "{report}");
     for seed in [5, 6] {
         for method in ["unguided", "guided-l2m"] {
             let stem = format!("covered-{method}-seed{seed}");

@@ -8,7 +8,7 @@ use sdguide_render::image::Image;
 use sdguide_render::reference::{self, ReferenceError};
 use sdguide_render::rng::Rng;
 use sdguide_render::scene::Scene;
-use sdguide_render::scenes::{covered, door, furnace, glossy_box, uplight};
+use sdguide_render::scenes::{caustic, covered, door, furnace, glossy_box, uplight};
 
 fn random_direction(rng: &mut Rng) -> Vec3 {
     let u = rng.next_vec2();
@@ -20,7 +20,7 @@ fn random_direction(rng: &mut Rng) -> Vec3 {
 
 #[test]
 fn bvh_finds_the_closest_hit_of_a_linear_scan() {
-    for scene in [door(), glossy_box(), uplight(), covered()] {
+    for scene in [door(), glossy_box(), uplight(), covered(), caustic()] {
         let (lo, hi) = scene.bounds();
         let mut rng = Rng::new(12);
         let mut hits = 0;
@@ -62,7 +62,7 @@ fn bvh_finds_the_closest_hit_of_a_linear_scan() {
 /// uplight's lamp over its ceiling) must not block their own shadow rays.
 #[test]
 fn shadow_rays_see_a_light_exactly_when_it_is_visible() {
-    for scene in [door(), glossy_box(), uplight(), covered()] {
+    for scene in [door(), glossy_box(), uplight(), covered(), caustic()] {
         let (lo, hi) = scene.bounds();
         let mut rng = Rng::new(31);
         let (mut visible, mut tested, mut wrong) = (0, 0, 0);
@@ -105,8 +105,14 @@ fn shadow_rays_see_a_light_exactly_when_it_is_visible() {
             "{}: {wrong} of {tested}",
             scene.name
         );
+        // The caustic's lamp is seen only from inside its glass cover, from few of the points.
+        let least = if scene.name == "caustic" {
+            10
+        } else {
+            tested / 100
+        };
         assert!(
-            visible > tested / 100,
+            visible > least,
             "{}: {visible} visible of {tested}",
             scene.name
         );
@@ -183,7 +189,7 @@ fn light_sampling_covers_the_emitters_solid_angle() {
 /// must come with a new reference), rendered from streams of their own.
 #[test]
 fn the_stored_references_match_their_scenes() {
-    for scene in [door(), glossy_box(), uplight(), covered()] {
+    for scene in [door(), glossy_box(), uplight(), covered(), caustic()] {
         // Seed 1 is the demo's default.
         let loaded = reference::load(&reference::directory(), &scene, 320, 240, 1);
         assert!(loaded.is_ok(), "{}: {:?}", scene.name, loaded.err());

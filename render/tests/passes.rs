@@ -1,0 +1,110 @@
+//! Combining a render's passes by inverse variance: each pass's variance estimate is the one
+//! its samples give, the combination weighs passes by its inverse, and a guided render's
+//! combined image converges to the furnace's analytic radiance (training passes are unbiased
+//! estimates, and so is their combination).
+
+use glam::Vec3;
+use sdguide::GuidingConfig;
+use sdguide_render::passes::{PassImage, combine};
+use sdguide_render::render::{Budget, Method, Training, render};
+use sdguide_render::scenes::furnace;
+
+/// A one-pixel pass whose samples are the grey values `values`.
+fn pass_of(values: &[f32]) -> PassImage {
+    let mut p = PassImage::new(1, 1);
+    for &v in values {
+        p.add(0, Vec3::splat(v));
+    }
+    p.spp = values.len() as u32;
+    p
+}
+
+#[test]
+fn a_pass_variance_is_its_pixels_sample_variance_over_n() {
+    // Samples 1 and 3: mean 2, sample variance 2, the mean's variance 2 / 2 = 1.
+    let p = pass_of(&[1.0, 3.0]);
+    assert!((p.variance().unwrap() - 1.0).abs() < 1e-5);
+    assert_eq!(p.mean().pixels[0], Vec3::splat(2.0));
+    // Samples 0, 0, 0, 4: mean 1, sample variance 4, the mean's variance 1.
+    assert!((pass_of(&[0.0, 0.0, 0.0, 4.0]).variance().unwrap() - 1.0).abs() < 1e-5);
+    // Nothing to estimate from one sample a pixel.
+    assert_eq!(pass_of(&[5.0]).variance(), None);
+    // Pixels are averaged: a second, constant pixel halves the mean variance.
+    let mut two = PassImage::new(2, 1);
+    for v in [1.0, 3.0] {
+        two.add(0, Vec3::splat(v));
+        two.add(1, Vec3::splat(7.0));
+    }
+    two.spp = 2;
+    assert!((two.variance().unwrap() - 0.5).abs() < 1e-5);
+}
+
+#[test]
+fn passes_are_weighed_by_their_inverse_variance() {
+    // Means 2 (variance 1) and 5 (variance 4): weights 1 and 1/4, so (2 + 5/4) / (5/4) = 2.6.
+    let low = pass_of(&[1.0, 3.0]);
+    let high = pass_of(&[3.0, 7.0]);
+    assert!((high.variance().unwrap() - 4.0).abs() < 1e-5);
+    let combined = combine(&[low.clone(), high]).unwrap();
+    assert!(
+        (combined.pixels[0].x - 2.6).abs() < 1e-5,
+        "{}",
+        combined.pixels[0]
+    );
+    // A pass without an estimate, or with a zero one, is left out; none left, no image.
+    let combined = combine(&[low, pass_of(&[100.0]), pass_of(&[9.0, 9.0])]).unwrap();
+    assert!((combined.pixels[0].x - 2.0).abs() < 1e-6);
+    assert!(combine(&[pass_of(&[1.0])]).is_none());
+    assert!(combine(&[]).is_none());
+}
+
+#[test]
+fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
+    const ALBEDO: f32 = 0.3;
+    let scene = furnace(ALBEDO, 1.0);
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let budget = Budget {
+        time: None,
+        spp: Some(16),
+        training_share: 0.3,
+        training_iterations: 5,
+    };
+    let training = Training {
+        config: &config,
+        cache: None,
+        guide_probability: None,
+    };
+    let outcome = render(
+        &scene,
+        Method::Guided(sdguide::LeafRule::L2),
+        (40, 30),
+        budget,
+        5,
+        training,
+        &|_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!((outcome.spp, outcome.training_spp), (16, 31));
+    // The combined image holds more samples than the final one: a smaller pixel spread.
+    let spread = |pixels: &[Vec3]| {
+        let n = pixels.len() as f64;
+        let mean = pixels.iter().map(|p| p.x as f64).sum::<f64>() / n;
+        let var = pixels
+            .iter()
+            .map(|p| (p.x as f64 - mean).powi(2))
+            .sum::<f64>()
+            / (n - 1.0);
+        (mean, (var / n).sqrt())
+    };
+    let (_, final_error) = spread(&outcome.image.pixels);
+    let (mean, error) = spread(&outcome.combined.pixels);
+    assert!(error < final_error, "{error} vs {final_error}");
+    let expected = 1.0 / (1.0 - ALBEDO) as f64;
+    assert!(
+        (mean - expected).abs() < 4.0 * error,
+        "{mean} vs {expected} ± {error}"
+    );
+}
