@@ -157,6 +157,17 @@ fn cornell_walls(b: &mut SceneBuilder) -> [u16; 2] {
     .map(|m| b.material(m))
 }
 
+/// The unit box `[0, 1]³` open at the front (`z = 0`): white floor, ceiling and back wall, the
+/// left wall `walls[0]` and the right one `walls[1]` (their normals into the box).
+fn open_box(b: &mut SceneBuilder, white: u16, [left, right]: [u16; 2]) {
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    b.quad(Vec3::ZERO, x, z, white)
+        .quad(y, z, x, white)
+        .quad(z, y, x, white)
+        .quad(Vec3::ZERO, z, y, left)
+        .quad(x, y, z, right);
+}
+
 /// "Glossy box": a Cornell-style box with a glossy floor and two glossy spheres of different
 /// roughness, lit by a small (0.15 m square) ceiling light. Open at the front.
 pub fn glossy_box() -> Scene {
@@ -206,12 +217,8 @@ pub fn covered() -> Scene {
     let [red, green] = cornell_walls(&mut b);
     let panel = b.material(Material::diffuse(Vec3::splat(0.5)));
     let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::splat(200.0)));
-    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
-    b.quad(Vec3::ZERO, x, z, white)
-        .quad(y, z, x, white)
-        .quad(z, y, x, white)
-        .quad(Vec3::ZERO, z, y, red)
-        .quad(x, y, z, green);
+    let (x, z) = (Vec3::X, Vec3::Z);
+    open_box(&mut b, white, [red, green]);
     // The panel, and the emitter on it facing the ceiling.
     b.cuboid(
         Vec3::new(0.35, 0.83, 0.35),
@@ -258,12 +265,8 @@ pub fn caustic() -> Scene {
     let [red, green] = cornell_walls(&mut b);
     let glass = b.material(Material::glass(1.5));
     let light = b.material(Material::diffuse(Vec3::ZERO).emitting(Vec3::splat(150.0)));
-    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
-    b.quad(Vec3::ZERO, x, z, white)
-        .quad(y, z, x, white)
-        .quad(z, y, x, white)
-        .quad(Vec3::ZERO, z, y, red)
-        .quad(x, y, z, green);
+    let (x, z) = (Vec3::X, Vec3::Z);
+    open_box(&mut b, white, [red, green]);
     // The lamp, facing down, and its cover around it.
     b.quad(Vec3::new(0.25, 0.99, 0.55), x * 0.1, z * 0.1, light)
         .cuboid(
@@ -287,16 +290,9 @@ pub fn caustic() -> Scene {
 /// that converges to it checks that the dielectric conserves energy and that paths through it
 /// are weighed right.
 pub fn glass_furnace(albedo: f32, emission: f32) -> Scene {
-    let mut b = SceneBuilder::default();
-    let m = b.material(Material::diffuse(Vec3::splat(albedo)).emitting(Vec3::splat(emission)));
+    let (mut b, camera) = furnace_room(albedo, emission, 1.0);
     let glass = b.material(Material::glass(1.5));
-    b.cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), true, m)
-        .sphere(Vec3::new(0.25, 0.1, 0.6), 0.35, glass);
-    let camera = Camera {
-        eye: Vec3::new(0.1, 0.2, -0.3),
-        target: Vec3::new(0.4, 0.1, 1.0),
-        fov_degrees: 70.0,
-    };
+    b.sphere(Vec3::new(0.25, 0.1, 0.6), 0.35, glass);
     b.build("glass-furnace", camera, 1.0)
 }
 
@@ -310,6 +306,13 @@ pub fn furnace(albedo: f32, emission: f32) -> Scene {
 /// The white furnace of [`furnace`], a cube of half-size `half` (metres). Its radiance does not
 /// depend on the size; a small one puts every light sample within a metre of its shading point.
 pub fn furnace_sized(albedo: f32, emission: f32, half: f32) -> Scene {
+    let (b, camera) = furnace_room(albedo, emission, half);
+    b.build("furnace", camera, 1.0)
+}
+
+/// The furnace cube of half-size `half` and its camera, for [`furnace_sized`] and
+/// [`glass_furnace`] to furnish.
+fn furnace_room(albedo: f32, emission: f32, half: f32) -> (SceneBuilder, Camera) {
     let mut b = SceneBuilder::default();
     let m = b.material(Material::diffuse(Vec3::splat(albedo)).emitting(Vec3::splat(emission)));
     b.cuboid(Vec3::splat(-half), Vec3::splat(half), true, m);
@@ -318,5 +321,5 @@ pub fn furnace_sized(albedo: f32, emission: f32, half: f32) -> Scene {
         target: Vec3::new(0.4, 0.1, 1.0) * half,
         fov_degrees: 70.0,
     };
-    b.build("furnace", camera, 1.0)
+    (b, camera)
 }

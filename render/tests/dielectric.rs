@@ -1,17 +1,10 @@
-//! The smooth dielectric: Fresnel's reflectance, Snell's law, total internal reflection, the
-//! choice between the two lobes in proportion to what each carries, and a furnace with a glass
-//! sphere in it that converges to the radiance it had without one (energy is conserved through
-//! the glass, guided or not).
+//! The smooth dielectric: Fresnel's reflectance, Snell's law, total internal reflection, and the
+//! choice between the two lobes in proportion to what each carries. That energy is conserved
+//! through it is the glass furnace's test (`furnace.rs`).
 
 use glam::Vec3;
-use sdguide::{GuidingConfig, GuidingField};
-use sdguide_render::image::Image;
-use sdguide_render::integrator::{Guide, Guiding};
 use sdguide_render::material::{Material, fresnel_dielectric};
-use sdguide_render::render::{field_bounds, render_pass, training_pass};
 use sdguide_render::rng::Rng;
-use sdguide_render::scene::Scene;
-use sdguide_render::scenes::glass_furnace;
 
 const IOR: f32 = 1.5;
 
@@ -123,98 +116,4 @@ fn a_dielectric_has_no_lobe_other_methods_could_evaluate() {
     // Its description says what it is; an opaque material's does not change with the field.
     assert!(format!("{glass:?}").contains("ior: 1.5"));
     assert!(!format!("{:?}", Material::diffuse(Vec3::ONE)).contains("ior"));
-}
-
-const ALBEDO: f32 = 0.3;
-const EMISSION: f32 = 1.0;
-const SIZE: (usize, usize) = (40, 30);
-const SPP: u32 = 32;
-
-/// The pixel mean and its standard error (pixels are independent estimates).
-fn mean_and_error(image: &Image) -> (f64, f64) {
-    let values: Vec<f64> = image
-        .pixels
-        .iter()
-        .map(|p| (p.x as f64 + p.y as f64 + p.z as f64) / 3.0)
-        .collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
-}
-
-fn render_in(scene: &Scene, field: Option<&GuidingField>) -> Image {
-    let mut sum = Image::new(SIZE.0, SIZE.1);
-    let guiding = field.map(|field| Guiding {
-        field: Guide::Sdguide(field),
-        record: false,
-        guide_probability: None,
-    });
-    render_pass(scene, guiding, &mut sum, SPP, 11, 0);
-    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
-    sum
-}
-
-/// Converges to `emission / (1 − albedo)`. Paths are cut after 10 scattering events, glass
-/// ones included: a path that reaches the cut has met at least `10 − 2k` diffuse walls for `k`
-/// crossings of the sphere, and the part lost is far below the statistical error.
-fn assert_converges(image: &Image, what: &str) {
-    let expected = (EMISSION / (1.0 - ALBEDO)) as f64;
-    let (mean, error) = mean_and_error(image);
-    assert!(
-        error > 0.0 && error < 0.01 * expected,
-        "{what}: error {error}"
-    );
-    assert!(
-        (mean - expected).abs() < 4.0 * error,
-        "{what}: mean {mean} vs {expected} (standard error {error})"
-    );
-}
-
-#[test]
-fn a_glass_sphere_leaves_the_furnace_radiance_as_it_was() {
-    for next_event in [true, false] {
-        let mut scene = glass_furnace(ALBEDO, EMISSION);
-        scene.next_event = next_event;
-        assert_converges(
-            &render_in(&scene, None),
-            &format!("unguided, NEE {next_event}"),
-        );
-        let config = GuidingConfig {
-            spatial_threshold: 1000.0,
-            ..GuidingConfig::default()
-        };
-        let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-        for pass in 0..5 {
-            training_pass(&scene, &mut field, SIZE, 1 << pass, 3, pass, None);
-        }
-        let stats = field.stats();
-        assert_eq!(stats.rejected.total(), 0, "{stats:?}");
-        assert!(stats.spatial_leaves > 1, "{stats:?}");
-        assert_converges(
-            &render_in(&scene, Some(&field)),
-            &format!("guided, NEE {next_event}"),
-        );
-    }
-}
-
-/// The camera sees the sphere: a sizeable share of the pixels' paths go through glass, so the
-/// furnace test above tests it.
-#[test]
-fn the_glass_furnace_camera_sees_the_sphere() {
-    let scene = glass_furnace(ALBEDO, EMISSION);
-    let aspect = SIZE.0 as f32 / SIZE.1 as f32;
-    let mut through = 0;
-    for j in 0..SIZE.1 {
-        for i in 0..SIZE.0 {
-            let film = glam::Vec2::new(
-                (i as f32 + 0.5) / SIZE.0 as f32,
-                (j as f32 + 0.5) / SIZE.1 as f32,
-            );
-            let hit = scene.intersect(&scene.camera.ray(film, aspect)).unwrap();
-            through += usize::from(scene.material(&hit).is_dielectric());
-        }
-    }
-    let share = through as f64 / (SIZE.0 * SIZE.1) as f64;
-    assert!(share > 0.1 && share < 0.9, "{share}");
 }

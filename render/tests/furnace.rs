@@ -2,14 +2,16 @@
 //! is `emission / (1 − albedo)` everywhere, so every pixel's expectation is known exactly. A
 //! render must converge to it with and without guiding — unbiasedness through the whole wiring
 //! (mixture sampling with the surface-aware guide, its pdf in the estimator and in MIS,
-//! next-event estimation or none, Russian roulette, recording and refining).
+//! next-event estimation or none, Russian roulette, recording and refining). A glass sphere in
+//! the furnace leaves its radiance as it was: energy is conserved through the dielectric, and
+//! paths through it are weighed right.
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::{Guide, Guiding};
 use sdguide_render::render::{field_bounds, render_pass, training_pass};
 use sdguide_render::scene::Scene;
-use sdguide_render::scenes::{furnace, furnace_sized};
+use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
 
 const ALBEDO: f32 = 0.3;
 const EMISSION: f32 = 1.0;
@@ -129,6 +131,49 @@ fn furnace_without_next_event_estimation_converges_guided_and_not() {
             &format!("{rule:?}, no NEE"),
         );
     }
+}
+
+/// Paths are cut after 10 scattering events, glass ones included: a path that reaches the cut
+/// through `k` crossings of the sphere has met at least `10 − 2k` diffuse walls, and the sphere
+/// fills a small part of every wall's view, so the part lost stays far below the statistical
+/// error.
+#[test]
+fn a_glass_sphere_leaves_the_furnace_radiance_as_it_was() {
+    for next_event in [true, false] {
+        let mut scene = glass_furnace(ALBEDO, EMISSION);
+        scene.next_event = next_event;
+        let what = format!("glass, NEE {next_event}");
+        assert_converges(&render_in(&scene, None, 11), &format!("{what}, unguided"));
+        let field = trained_in(&scene, LeafRule::L2);
+        let stats = field.stats();
+        assert_eq!(stats.rejected.total(), 0, "{stats:?}");
+        assert!(stats.spatial_leaves > 1, "{stats:?}");
+        assert_converges(
+            &render_in(&scene, Some(Guide::Sdguide(&field)), 11),
+            &format!("{what}, guided"),
+        );
+    }
+}
+
+/// The glass furnace's camera sees the sphere: a sizeable share of the pixels' paths go
+/// through glass, so the test above tests it.
+#[test]
+fn the_glass_furnace_camera_sees_the_sphere() {
+    let scene = glass_furnace(ALBEDO, EMISSION);
+    let aspect = SIZE.0 as f32 / SIZE.1 as f32;
+    let mut through = 0;
+    for j in 0..SIZE.1 {
+        for i in 0..SIZE.0 {
+            let film = glam::Vec2::new(
+                (i as f32 + 0.5) / SIZE.0 as f32,
+                (j as f32 + 0.5) / SIZE.1 as f32,
+            );
+            let hit = scene.intersect(&scene.camera.ray(film, aspect)).unwrap();
+            through += usize::from(scene.material(&hit).is_dielectric());
+        }
+    }
+    let share = through as f64 / (SIZE.0 * SIZE.1) as f64;
+    assert!(share > 0.1 && share < 0.9, "{share}");
 }
 
 /// The peer's wiring is unbiased too: Open PGL's field, trained on the furnace, with and without
