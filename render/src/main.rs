@@ -677,8 +677,9 @@ fn footnotes() -> String {
     "relMSE: the final render's. With training passes: the final render and the training \
      passes combined by inverse variance; relMSE vs unguided compares these, what each \
      method's whole budget bought. Per sample: the final render's relMSE × spp over \
-     unguided's. Time per spp: the final render's, training excluded. Mean vs reference: the image mean's distance from the reference's in standard \
-     errors of the pixel differences (|z| ≤ 3 for an unbiased render).\n\n\
+     unguided's. Time per spp: the final render's, training excluded. Mean vs reference: the \
+     image mean's distance from the reference's in standard errors of the pixel differences \
+     (|z| ≤ 3 for an unbiased render).\n\n\
      Images: `<scene>-<method>.png` (tone-mapped) and `.exr` (linear), `-seed<N>` added when \
      several seeds run; `<scene>-compare.png`: reference and methods on top, per-pixel relative \
      squared error below (log scale, 10⁻⁴ black to 10 yellow; the ramp is under the \

@@ -168,9 +168,7 @@ impl Material {
         let pdf = self.pdf(wo, wi);
         (pdf > 0.0).then_some(BsdfSample { wi, pdf })
     }
-}
 
-impl Material {
     /// Draws the direction a dielectric scatters `wo` into (`wo.z > 0`; `entering` when `wo`
     /// lies outside the shape): the mirror direction with the Fresnel reflectance `F`, else the
     /// refracted one (Snell's law), with `u` uniform in `[0, 1)`. Chosen in proportion to what

@@ -79,20 +79,21 @@ impl PassImage {
 /// The passes' images combined by inverse variance; passes without a variance estimate, or
 /// with a zero or non-finite one, are left out. `None` when no pass can be weighed.
 pub fn combine(passes: &[PassImage]) -> Option<Image> {
-    let weighed: Vec<(f64, Image)> = passes
+    let weighed: Vec<(f64, &PassImage)> = passes
         .iter()
         .filter_map(|p| {
             let v = p.variance()?;
-            (v > 0.0 && v.is_finite()).then(|| (1.0 / v, p.mean()))
+            (v > 0.0 && v.is_finite()).then_some((1.0 / v, p))
         })
         .collect();
     let (_, first) = weighed.first()?;
     let total: f64 = weighed.iter().map(|(w, _)| w).sum();
-    let mut combined = Image::new(first.width, first.height);
-    for (w, image) in &weighed {
-        let share = (w / total) as f32;
-        for (c, p) in combined.pixels.iter_mut().zip(&image.pixels) {
-            *c += *p * share;
+    let mut combined = Image::new(first.sum.width, first.sum.height);
+    for (w, pass) in &weighed {
+        // The pass's weight, applied to its sums: its mean is the sum over its samples.
+        let share = (w / total / f64::from(pass.spp)) as f32;
+        for (c, s) in combined.pixels.iter_mut().zip(&pass.sum.pixels) {
+            *c += *s * share;
         }
     }
     Some(combined)

@@ -4,6 +4,7 @@
 
 use crate::image::Image;
 use crate::integrator::{Guide, Guiding, radiance};
+use crate::material::luminance;
 use crate::passes::{PassImage, combine};
 use crate::rng::Rng;
 use crate::scene::Scene;
@@ -29,7 +30,7 @@ pub fn render_pass(
     pass: u32,
 ) {
     let size = (sum.width, sum.height);
-    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l| {
+    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l, _| {
         sum.pixels[pixel] += l;
     });
 }
@@ -45,14 +46,23 @@ pub fn render_pass_image(
     pass: u32,
 ) {
     let size = (image.sum.width, image.sum.height);
-    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l| {
-        image.add(pixel, l);
-    });
+    render_samples(
+        scene,
+        guiding,
+        size,
+        spp,
+        seed,
+        pass,
+        |pixel, l, squares| {
+            image.sum.pixels[pixel] += l;
+            image.squares[pixel] += squares;
+        },
+    );
     image.spp += spp;
 }
 
-/// Renders `spp` samples of every pixel of a `width × height` image and hands each sample to
-/// `add` with its pixel index, in a fixed order.
+/// Renders `spp` samples of every pixel of a `width × height` image and hands each pixel's sums
+/// to `add`: its index, the sum of its samples and the sum of their squared luminance.
 fn render_samples(
     scene: &Scene,
     guiding: Option<Guiding<'_>>,
@@ -60,7 +70,7 @@ fn render_samples(
     spp: u32,
     seed: u64,
     pass: u32,
-    mut add: impl FnMut(usize, Vec3),
+    mut add: impl FnMut(usize, Vec3, f64),
 ) {
     let aspect = width as f32 / height as f32;
     // One random stream per pixel and pass: the key `pass·2³² + pixel`, salted by the seed.
@@ -70,14 +80,15 @@ fn render_samples(
     let tiles: Vec<(usize, usize)> = (0..height.div_ceil(TILE))
         .flat_map(|ty| (0..width.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
-    let rendered: Vec<Vec<Vec3>> = tiles
+    let rendered: Vec<Vec<(Vec3, f64)>> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
-            let mut out = Vec::with_capacity(TILE * TILE * spp as usize);
+            let mut out = Vec::with_capacity(TILE * TILE);
             for y in y0..(y0 + TILE).min(height) {
                 for x in x0..(x0 + TILE).min(width) {
                     let pixel = (y * width + x) as u64;
                     let mut rng = Rng::new(salt ^ ((pass as u64) << 32 | pixel));
+                    let (mut c, mut squares) = (Vec3::ZERO, 0.0);
                     for _ in 0..spp {
                         let film = (Vec2::new(x as f32, y as f32) + rng.next_vec2())
                             / Vec2::new(width as f32, height as f32);
@@ -85,20 +96,23 @@ fn render_samples(
                         // A NaN or infinite path would poison the pixel; none should occur, and
                         // a debug build says so.
                         debug_assert!(l.is_finite(), "non-finite radiance {l}");
-                        out.push(if l.is_finite() { l } else { Vec3::ZERO });
+                        if l.is_finite() {
+                            c += l;
+                            squares += f64::from(luminance(l)).powi(2);
+                        }
                     }
+                    out.push((c, squares));
                 }
             }
             out
         })
         .collect();
     for (&(x0, y0), tile) in tiles.iter().zip(rendered) {
-        let mut samples = tile.into_iter();
+        let mut sums = tile.into_iter();
         for y in y0..(y0 + TILE).min(height) {
             for x in x0..(x0 + TILE).min(width) {
-                for _ in 0..spp {
-                    add(y * width + x, samples.next().unwrap_or_default());
-                }
+                let (c, squares) = sums.next().unwrap_or_default();
+                add(y * width + x, c, squares);
             }
         }
     }
@@ -398,9 +412,9 @@ struct Schedule {
 }
 
 impl Schedule {
-    /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp, time and images. With a
-    /// time budget, passes continue while the next one — twice the samples, so about twice the
-    /// time — still fits in the training share (at most 2¹⁶ − 1 spp).
+    /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp, time and images.
+    /// With a time budget, passes continue while the next one — twice the samples, so about
+    /// twice the time — still fits in the training share (at most 2¹⁶ − 1 spp).
     fn train(
         &self,
         scene: &Scene,

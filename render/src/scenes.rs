@@ -157,8 +157,8 @@ fn cornell_walls(b: &mut SceneBuilder) -> [u16; 2] {
     .map(|m| b.material(m))
 }
 
-/// The unit box `[0, 1]³` open at the front (`z = 0`): white floor, ceiling and back wall, the
-/// left wall `walls[0]` and the right one `walls[1]` (their normals into the box).
+/// The unit box `[0, 1]³` open at the front (`z = 0`): white floor, ceiling and back wall, and
+/// the walls `left` (`x = 0`) and `right` (`x = 1`), their normals into the box.
 fn open_box(b: &mut SceneBuilder, white: u16, [left, right]: [u16; 2]) {
     let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
     b.quad(Vec3::ZERO, x, z, white)
