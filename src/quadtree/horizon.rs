@@ -34,11 +34,26 @@
 //! is left below the horizon lies within a hair of it, and the cosine is followed inside
 //! coarse leaves too. A cell whose corners are all below ends the descent, even inside the
 //! guide's tree.
+//!
+//! **Where the cosine settles.** Once the descent enters a cell whose corners are all above the
+//! horizon and within a factor [`SETTLED`] of each other, the levels below follow the guide's
+//! own conditionals: the cosine would reweigh them by less than that factor, and they then cost
+//! what the plain descent costs. Whether a cell has settled depends only on the cell and the
+//! normal, so `sample` and `pdf` switch at the same place.
+//!
+//! **What a level costs.** The levels form a chain: each level's corners depend on the quadrant
+//! the level above chose. The corners of cells above [`TABLE_DEPTH`] (where almost every descent
+//! spends its levels) are looked up in one table of directions shared by every tree, a dot
+//! product each, instead of mapped; on the standard workload that took the surface query from
+//! 4.3× the plain query's time to 2.5× (docs/performance.md). What is left is mostly the load of
+//! each level's node, a cache miss on a large field, which the plain descent waits for too.
 
 use super::sampling::{place, unit};
 use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
+use crate::sphere::square_to_direction;
 use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::FRAC_PI_4;
+use std::sync::LazyLock;
 
 /// How deep the product follows the cosine inside the guide's leaves where the horizon does not
 /// cross them (cells at this depth have chord radius 0.018).
@@ -48,6 +63,12 @@ pub(crate) const SURFACE_DEPTH: u32 = 8;
 /// 7·10⁻⁵, and their side (1.5·10⁻⁵) still fifteen times the map's round-trip error, so a
 /// point at a cell's centre comes back to it.
 pub(crate) const HORIZON_DEPTH: u32 = 16;
+
+/// Where the cosine over a cell's corners varies by at most this factor (and stays above the
+/// horizon), the product stops weighing the cell's descendants: over such a cell the cosine
+/// changes the guide's density by less than this, and the levels below cost what the plain
+/// descent costs.
+const SETTLED: f32 = 1.25;
 
 /// `r_d·2^d`: the bound on the chord from a cell's centre direction to any of its directions.
 const CHORD_PER_SIDE: f32 = 4.5;
@@ -119,11 +140,70 @@ fn cosines(n: Vec3, sx: Vec4, sy: Vec4) -> Vec4 {
     x * n.x + y * n.y + z * n.z
 }
 
+/// The depth of the finest grid of cell corners whose directions are kept in [`CORNERS`]: the
+/// levels above it (where almost every descent spends its levels) look their corners up
+/// instead of mapping them, which takes the map's division, square root and polynomials off the
+/// chain of dependent steps from one level to the next.
+const TABLE_DEPTH: u32 = 6;
+
+/// Points per side of the corner grid at [`TABLE_DEPTH`].
+const TABLE_SIDE: usize = (1 << TABLE_DEPTH) + 1;
+
+/// The directions of the grid points `(i, j)·2^-TABLE_DEPTH`, row-major (`j·TABLE_SIDE + i`),
+/// by the exact map: 4225 directions, 51 KB, shared by every tree.
+static CORNERS: LazyLock<Box<[Vec3]>> = LazyLock::new(|| {
+    let step = 1.0 / (TABLE_SIDE - 1) as f32;
+    (0..TABLE_SIDE * TABLE_SIDE)
+        .map(|k| {
+            let (i, j) = (k % TABLE_SIDE, k / TABLE_SIDE);
+            square_to_direction(Vec2::new(i as f32 * step, j as f32 * step))
+        })
+        .collect()
+});
+
 /// The range `[lo, hi]` of `n·ω` over the corners of each of the four children of the cell
 /// `cell` at `depth` (child `q = ix + 2·iy` in lane `q`): the children's corners are the 3 × 3
-/// grid over the cell, evaluated as three groups of four.
+/// grid over the cell, looked up in [`CORNERS`] above [`TABLE_DEPTH`] and mapped, as three
+/// groups of four, below it.
 #[inline]
 fn child_corner_range(n: Vec3, cell: [u32; 2], depth: u32) -> (Vec4, Vec4) {
+    let g = if depth < TABLE_DEPTH {
+        // Grid point (i, j) at depth + 1 is table point (2·cell + (i, j))·2^shift.
+        let shift = TABLE_DEPTH - depth - 1;
+        let corners: &[Vec3] = &CORNERS;
+        let (x0, y0) = (
+            (cell[0] as usize) << (shift + 1),
+            (cell[1] as usize) << (shift + 1),
+        );
+        let step = 1usize << shift;
+        let at = |i: usize, j: usize| {
+            corners
+                .get((y0 + j * step) * TABLE_SIDE + x0 + i * step)
+                .map_or(0.0, |c| c.dot(n))
+        };
+        [
+            at(0, 0),
+            at(1, 0),
+            at(2, 0),
+            at(0, 1),
+            at(1, 1),
+            at(2, 1),
+            at(0, 2),
+            at(1, 2),
+            at(2, 2),
+        ]
+    } else {
+        mapped_grid(n, cell, depth)
+    };
+    // Child q's corners: its lower-left grid point k = iy·3 + ix, and k+1, k+3, k+4.
+    let at = |k: usize| Vec4::new(g[k], g[k + 1], g[k + 3], g[k + 4]);
+    let (a, b, c, d) = (at(0), at(1), at(3), at(4));
+    (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)))
+}
+
+/// `n·ω` at the 3 × 3 grid over the cell `cell` at `depth`, row-major, by the polynomial map.
+#[inline]
+fn mapped_grid(n: Vec3, cell: [u32; 2], depth: u32) -> [f32; 9] {
     // Grid point (i, j) is (2·cell + (i, j))·2^-(depth + 1): exact in f32.
     let half = f32::from_bits((126 - depth) << 23);
     let (x0, y0) = ((2 * cell[0]) as f32, (2 * cell[1]) as f32);
@@ -142,12 +222,7 @@ fn child_corner_range(n: Vec3, cell: [u32; 2], depth: u32) -> (Vec4, Vec4) {
         Vec4::splat(x0 + 2.0) * half,
         Vec4::splat(y0 + 2.0) * half,
     );
-    // Grid values, row-major: g[j·3 + i].
-    let g = [g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w, g2.x];
-    // Child q's corners: its lower-left grid point k = iy·3 + ix, and k+1, k+3, k+4.
-    let at = |k: usize| Vec4::new(g[k], g[k + 1], g[k + 3], g[k + 4]);
-    let (a, b, c, d) = (at(0), at(1), at(3), at(4));
-    (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)))
+    [g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w, g2.x]
 }
 
 /// One level of the product's descent: the conditionals of the four quadrants, as a
@@ -199,6 +274,18 @@ impl Level {
         }
     }
 
+    /// The guide's own conditionals, below a cell where the cosine has settled. The corner
+    /// range it reports, `[1, 1]`, keeps the descent going exactly where the guide's tree does.
+    #[inline]
+    fn settled(guide: &SamplingNode) -> Self {
+        Self {
+            px: guide.px,
+            py: guide.py,
+            lo: Vec4::ONE,
+            hi: Vec4::ONE,
+        }
+    }
+
     /// `4·P(q)`, as [`SamplingNode`]'s: sample and pdf multiply the same factors.
     #[inline]
     fn density_factor(&self, ix: usize, iy: usize) -> f32 {
@@ -219,11 +306,14 @@ impl Level {
 }
 
 /// Where a descent stands: the guide's node (or none, inside one of its leaves), the cell and
-/// its depth.
+/// its depth, and whether the cosine has settled there.
 struct Cursor {
     node: Option<usize>,
     cell: [u32; 2],
     depth: u32,
+    /// The cell's corners are all above the horizon and their cosines within [`SETTLED`] of
+    /// each other: below it the product follows the guide's own conditionals.
+    settled: bool,
 }
 
 impl Cursor {
@@ -231,6 +321,7 @@ impl Cursor {
         node: Some(0),
         cell: [0, 0],
         depth: 0,
+        settled: false,
     };
 
     /// The level at the cursor's node.
@@ -240,6 +331,9 @@ impl Cursor {
             Some(i) => &tree.nodes()[i],
             None => &SamplingNode::UNIFORM,
         };
+        if self.settled {
+            return Level::settled(guide);
+        }
         Level::new(guide, n, self.cell, self.depth)
     }
 
@@ -252,9 +346,11 @@ impl Cursor {
         // A cell whose corners are all below the horizon ends the descent even inside the
         // guide's tree: its weight is the small positive one that keeps the estimator
         // unbiased, and the guide's shape within it does not matter.
-        if level.hi[q] <= 0.0 {
+        let (lo, hi) = (level.lo[q], level.hi[q]);
+        if hi <= 0.0 {
             return false;
         }
+        self.settled |= lo > 0.0 && hi <= SETTLED * lo;
         self.node = self
             .node
             .map(|i| tree.nodes()[i].child[q])
@@ -464,6 +560,58 @@ mod tests {
         let mut out = Vec::new();
         visit(tree, n, Cursor::ROOT, 1.0, &mut out);
         out
+    }
+
+    #[test]
+    fn below_a_settled_cell_the_product_follows_the_guide() {
+        /// A cell and its depth.
+        type Cell = ([u32; 2], u32);
+        // Every final cell with the first settled cell on its way down, if any.
+        fn visit(
+            tree: &SamplingTree,
+            n: Vec3,
+            at: Cursor,
+            settled_at: Option<Cell>,
+            out: &mut Vec<(Cell, Option<Cell>)>,
+        ) {
+            let level = at.level(tree, n);
+            for q in 0..4 {
+                let (ix, iy) = (q & 1, q >> 1);
+                let mut next = Cursor { ..at };
+                let goes_on = next.enter(tree, &level, ix, iy);
+                let settled_at = settled_at.or(next.settled.then_some((next.cell, next.depth)));
+                if goes_on {
+                    visit(tree, n, next, settled_at, out);
+                } else {
+                    out.push(((next.cell, next.depth), settled_at));
+                }
+            }
+        }
+        let mut next = uniform(21);
+        let mut groups = 0;
+        for seed in 1..=3 {
+            let tree = random_sampling_tree(seed);
+            for n in normals(&mut next) {
+                let mut cells = Vec::new();
+                visit(&tree, n, Cursor::ROOT, None, &mut cells);
+                // Within a settled cell, the product's density is the guide's times one factor.
+                let mut factor = std::collections::HashMap::new();
+                for ((cell, depth), settled_at) in cells {
+                    let Some(key) = settled_at else { continue };
+                    let size = 0.5f32.powi(depth as i32);
+                    let centre = (Vec2::new(cell[0] as f32, cell[1] as f32) + 0.5) * size;
+                    let ratio =
+                        f64::from(tree.pdf_surface(n, centre)) / f64::from(tree.pdf(centre));
+                    let first = *factor.entry(key).or_insert(ratio);
+                    assert!(
+                        (ratio / first - 1.0).abs() < 1e-5,
+                        "seed {seed}, n = {n}, {key:?}: {ratio} vs {first}"
+                    );
+                }
+                groups += factor.len();
+            }
+        }
+        assert!(groups > 10, "{groups} settled cells");
     }
 
     /// A random unit normal (not uniform over the sphere, which these tests do not need).
