@@ -44,9 +44,9 @@
 //! **What a level costs.** The levels form a chain: each level's corners depend on the quadrant
 //! the level above chose. The corners of cells above [`TABLE_DEPTH`] (where almost every descent
 //! spends its levels) are looked up in one table of directions shared by every tree, a dot
-//! product each, instead of mapped; on the standard workload that took the surface query from
-//! 4.3× the plain query's time to 2.5× (docs/performance.md). What is left is mostly the load of
-//! each level's node, a cache miss on a large field, which the plain descent waits for too.
+//! product each, instead of mapped (docs/performance.md measures both). What is left is mostly
+//! the load of each level's node, a cache miss on a large field, which the plain descent waits
+//! for too.
 
 use super::sampling::{place, unit};
 use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
@@ -533,14 +533,32 @@ mod tests {
         }
     }
 
-    /// Every final cell of the product's descent with its probability, depth first.
-    fn final_cells(tree: &SamplingTree, n: Vec3) -> Vec<([u32; 2], u32, f64)> {
+    /// A final cell of the product's descent.
+    struct FinalCell {
+        cell: [u32; 2],
+        depth: u32,
+        /// The probability the descent gives it.
+        p: f64,
+        /// The first settled cell on the way down to it, and that cell's depth, if any.
+        settled_at: Option<([u32; 2], u32)>,
+    }
+
+    impl FinalCell {
+        /// The centre of the cell on the square.
+        fn centre(&self) -> Vec2 {
+            let size = 0.5f32.powi(self.depth as i32);
+            (Vec2::new(self.cell[0] as f32, self.cell[1] as f32) + 0.5) * size
+        }
+    }
+
+    /// Every final cell of the product's descent of positive probability, depth first.
+    fn final_cells(tree: &SamplingTree, n: Vec3) -> Vec<FinalCell> {
         fn visit(
             tree: &SamplingTree,
             n: Vec3,
             at: Cursor,
-            p: f64,
-            out: &mut Vec<([u32; 2], u32, f64)>,
+            (p, settled_at): (f64, Option<([u32; 2], u32)>),
+            out: &mut Vec<FinalCell>,
         ) {
             let level = at.level(tree, n);
             for q in 0..4 {
@@ -550,58 +568,38 @@ mod tests {
                     continue;
                 }
                 let mut next = Cursor { ..at };
-                if next.enter(tree, &level, ix, iy) {
-                    visit(tree, n, next, pq, out);
+                let goes_on = next.enter(tree, &level, ix, iy);
+                let settled_at = settled_at.or(next.settled.then_some((next.cell, next.depth)));
+                if goes_on {
+                    visit(tree, n, next, (pq, settled_at), out);
                 } else {
-                    out.push((next.cell, next.depth, pq));
+                    out.push(FinalCell {
+                        cell: next.cell,
+                        depth: next.depth,
+                        p: pq,
+                        settled_at,
+                    });
                 }
             }
         }
         let mut out = Vec::new();
-        visit(tree, n, Cursor::ROOT, 1.0, &mut out);
+        visit(tree, n, Cursor::ROOT, (1.0, None), &mut out);
         out
     }
 
     #[test]
     fn below_a_settled_cell_the_product_follows_the_guide() {
-        /// A cell and its depth.
-        type Cell = ([u32; 2], u32);
-        // Every final cell with the first settled cell on its way down, if any.
-        fn visit(
-            tree: &SamplingTree,
-            n: Vec3,
-            at: Cursor,
-            settled_at: Option<Cell>,
-            out: &mut Vec<(Cell, Option<Cell>)>,
-        ) {
-            let level = at.level(tree, n);
-            for q in 0..4 {
-                let (ix, iy) = (q & 1, q >> 1);
-                let mut next = Cursor { ..at };
-                let goes_on = next.enter(tree, &level, ix, iy);
-                let settled_at = settled_at.or(next.settled.then_some((next.cell, next.depth)));
-                if goes_on {
-                    visit(tree, n, next, settled_at, out);
-                } else {
-                    out.push(((next.cell, next.depth), settled_at));
-                }
-            }
-        }
         let mut next = uniform(21);
         let mut groups = 0;
         for seed in 1..=3 {
             let tree = random_sampling_tree(seed);
             for n in normals(&mut next) {
-                let mut cells = Vec::new();
-                visit(&tree, n, Cursor::ROOT, None, &mut cells);
                 // Within a settled cell, the product's density is the guide's times one factor.
                 let mut factor = std::collections::HashMap::new();
-                for ((cell, depth), settled_at) in cells {
-                    let Some(key) = settled_at else { continue };
-                    let size = 0.5f32.powi(depth as i32);
-                    let centre = (Vec2::new(cell[0] as f32, cell[1] as f32) + 0.5) * size;
-                    let ratio =
-                        f64::from(tree.pdf_surface(n, centre)) / f64::from(tree.pdf(centre));
+                for c in final_cells(&tree, n) {
+                    let Some(key) = c.settled_at else { continue };
+                    let ratio = f64::from(tree.pdf_surface(n, c.centre()))
+                        / f64::from(tree.pdf(c.centre()));
                     let first = *factor.entry(key).or_insert(ratio);
                     assert!(
                         (ratio / first - 1.0).abs() < 1e-5,
@@ -638,14 +636,14 @@ mod tests {
             let tree = random_sampling_tree(seed);
             for n in normals(&mut next) {
                 let cells = final_cells(&tree, n);
-                let total: f64 = cells.iter().map(|c| c.2).sum();
+                let total: f64 = cells.iter().map(|c| c.p).sum();
                 assert!((total - 1.0).abs() < 1e-5, "seed {seed}, n = {n}: {total}");
                 // The density `pdf` finds at each cell's centre, times the cell's area, is the
                 // probability the descent gave it (so `pdf` integrates to 1 too).
-                for &(cell, depth, p) in &cells {
+                for c in &cells {
+                    let (cell, depth, p) = (c.cell, c.depth, c.p);
                     let size = 0.5f32.powi(depth as i32);
-                    let centre = (Vec2::new(cell[0] as f32, cell[1] as f32) + 0.5) * size;
-                    let mass = f64::from(tree.pdf_surface(n, centre)) * f64::from(size * size);
+                    let mass = f64::from(tree.pdf_surface(n, c.centre())) * f64::from(size * size);
                     // (The test trees' masses span 10⁻⁹ per level, so some densities are
                     // `f32` subnormals, exact to an absolute 10⁻⁴⁵ only.)
                     assert!(
@@ -667,7 +665,7 @@ mod tests {
         let tree = random_sampling_tree(2);
         for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
             let mut expected = vec![0.0f64; (bins * bins) as usize];
-            for (cell, depth, p) in final_cells(&tree, n) {
+            for FinalCell { cell, depth, p, .. } in final_cells(&tree, n) {
                 if depth >= 5 {
                     let shift = depth - 5;
                     expected[((cell[1] >> shift) * bins + (cell[0] >> shift)) as usize] += p;
