@@ -15,7 +15,8 @@
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
 use sdguide::{
-    DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample, SpatialFilter,
+    Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
+    SpatialFilter,
 };
 use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
 use std::hint::black_box;
@@ -124,6 +125,22 @@ fn bench_record(c: &mut Criterion) {
         .collect();
     g.bench_function("1-thread, with mixture terms", |b| {
         b.iter(|| field.record_all(black_box(&with_mixture)))
+    });
+    // What a renderer with roulette and splitting adds per vertex: one continuation.
+    let continuations: Vec<Continuation> = batch
+        .iter()
+        .map(|s| Continuation {
+            position: s.position,
+            value: s.value * 0.3,
+            cost: 4.0,
+        })
+        .collect();
+    g.bench_function("1-thread, continuation", |b| {
+        b.iter(|| {
+            for c in black_box(&continuations) {
+                field.record_continuation(c);
+            }
+        })
     });
     // The mixture rule looks up the guide's own pdf of each sample's direction (its field
     // trains as L2's: the workload records no mixture terms).

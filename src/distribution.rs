@@ -9,6 +9,7 @@
 use crate::DirectionalCell;
 use crate::quadtree::{DirectionalTree, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree};
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
+use crate::splitting::ContinuationEstimate;
 use glam::{Vec2, Vec3};
 
 /// A piecewise-constant distribution over the sphere, borrowed from a [`GuidingField`](crate::GuidingField).
@@ -18,6 +19,7 @@ use glam::{Vec2, Vec3};
 pub struct DirectionalDistribution<'a> {
     tree: &'a SamplingTree,
     guide_probability: f32,
+    continuation: &'a ContinuationEstimate,
 }
 
 impl<'a> DirectionalDistribution<'a> {
@@ -27,6 +29,7 @@ impl<'a> DirectionalDistribution<'a> {
         Self {
             tree: &tree.sampling,
             guide_probability: tree.selection.probability,
+            continuation: &tree.continuations.estimate,
         }
     }
 
@@ -73,6 +76,14 @@ impl<'a> DirectionalDistribution<'a> {
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.guide_probability
+    }
+
+    /// The cell's continuation estimate, for [`Splitting::factor`](crate::Splitting::factor):
+    /// what [`GuidingField::continuation`](crate::GuidingField::continuation) returns at the
+    /// same position, without a second lookup.
+    #[inline]
+    pub fn continuation(&self) -> ContinuationEstimate {
+        *self.continuation
     }
 
     /// The distribution's product with the clamped cosine `max(0, n·ω)` about the surface
@@ -172,6 +183,12 @@ impl SurfaceDistribution<'_> {
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.plain.guide_probability
+    }
+
+    /// The cell's continuation estimate, as [`DirectionalDistribution::continuation`].
+    #[inline]
+    pub fn continuation(&self) -> ContinuationEstimate {
+        self.plain.continuation()
     }
 
     /// The unit normal the product is taken with (`None`: the plain distribution).

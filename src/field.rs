@@ -13,8 +13,9 @@ use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
 use crate::stats::RejectCounters;
 use crate::{
-    Aabb, ConfigError, DirectionalCell, DirectionalDistribution, FieldStats, GuidingConfig,
-    LeafRule, Moments, RejectReason, Rejections, Sample, SpatialFilter,
+    Aabb, ConfigError, Continuation, ContinuationEstimate, DirectionalCell,
+    DirectionalDistribution, FieldStats, GuidingConfig, LeafRule, Moments, RejectReason,
+    Rejections, Sample, SpatialFilter,
 };
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -214,6 +215,49 @@ impl GuidingField {
             .record(self.config.directional_filter, square, w, counted);
     }
 
+    /// Records one traced continuation of a path vertex (see [`Continuation`]), for the
+    /// roulette and splitting factors of [`splitting`](crate::splitting). Safe to call from
+    /// any number of threads at once; never blocks. A continuation that fails
+    /// [`Continuation::check`] or lies outside the bounds (as for [`record`](Self::record)) is
+    /// rejected and counted in [`FieldStats::rejected`].
+    #[inline]
+    pub fn record_continuation(&self, continuation: &Continuation) {
+        let _ = self.try_record_continuation(continuation);
+    }
+
+    /// Records one continuation like [`record_continuation`](Self::record_continuation), and
+    /// says whether it was rejected (and counted).
+    ///
+    /// # Errors
+    ///
+    /// The [`RejectReason`] of a rejected continuation.
+    #[inline]
+    pub fn try_record_continuation(&self, c: &Continuation) -> Result<(), RejectReason> {
+        c.check()
+            .and_then(|()| {
+                if self.spatial.accepts(c.position) {
+                    Ok(())
+                } else {
+                    Err(RejectReason::OutOfBounds)
+                }
+            })
+            .map(|()| {
+                self.trees[self.spatial.leaf_at(c.position)]
+                    .continuations
+                    .record(c.value, c.cost);
+            })
+            .inspect_err(|&reason| self.rejected.count(reason))
+    }
+
+    /// The continuation estimate of the spatial cell at `position` (the nearest cell's outside
+    /// the bounds), for [`Splitting::factor`](crate::Splitting::factor).
+    #[inline]
+    pub fn continuation(&self, position: Vec3) -> ContinuationEstimate {
+        self.trees[self.spatial.leaf_at(position)]
+            .continuations
+            .estimate
+    }
+
     /// The directional distribution to sample at `position`. Positions outside the bounds get
     /// the nearest cell's distribution, so a renderer always receives a valid one.
     #[inline]
@@ -297,6 +341,9 @@ impl GuidingField {
             s.directional_leaves += leaves as u64;
             s.directional_depth = s.directional_depth.max(depth);
             s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
+            s.continuations_recorded = s
+                .continuations_recorded
+                .saturating_add(t.continuations.recorded().count);
         }
         s.samples_recorded_total = self.recorded_before.saturating_add(s.samples_recorded);
         s

@@ -24,6 +24,11 @@
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
 //!   merge    GuidingField::merge                   worker fields ─► summed statistics ─► refine
+//!
+//!   roulette and splitting, beside the guide:
+//!   record   record_continuation(c)                 a traced continuation's value and cost ─► the leaf's sums
+//!   refine                                          sums ─► the leaf's continuation estimate
+//!   query    continuation(x) ─► Splitting::factor   how many continuations to trace from a vertex
 //! ```
 //!
 //! ```
@@ -65,6 +70,8 @@
 //! - [`filter`]: spreading a recorded sample over neighbouring cells (splatting).
 //! - `merge`: adding the statistics of fields trained in parallel.
 //! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
+//! - [`splitting`]: efficiency-aware Russian roulette and splitting — the continuation moments
+//!   each spatial leaf learns, and the factor they give.
 //! - [`guide_probability`]: the per-cell probability of sampling the guide rather than the BSDF.
 //! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
 //!   out ([`FieldStats`]).
@@ -91,6 +98,7 @@ mod rule;
 mod sample;
 mod spatial;
 pub mod sphere;
+pub mod splitting;
 mod stats;
 
 /// The vector types of the API (`Vec2`, `Vec3`), from the glam version sdguide is built with.
@@ -108,6 +116,7 @@ pub use quadtree::DirectionalCell;
 pub use refinement::Refinement;
 pub use rule::LeafRule;
 pub use sample::{MixtureTerms, RejectReason, Sample};
+pub use splitting::{Continuation, ContinuationEstimate, Splitting, SplittingMode};
 pub use stats::{FieldStats, Rejections};
 
 #[cfg(test)]

@@ -47,7 +47,7 @@ impl std::error::Error for MergeError {}
 
 impl GuidingField {
     /// Adds the statistics `other` recorded in the current iteration — every cell's sums and
-    /// counts, the guide-selection sums, and the rejection counts — to this field's. Both
+    /// counts, the guide-selection sums, the continuation sums, and the rejection counts — to this field's. Both
     /// fields must have started the iteration from the same state (typically: the same cache,
     /// loaded on two workers). Under [`DirectionalFilter::DeferredBox`] both fields' pending
     /// sums are spread first (in `other` too, which changes nothing it would report or save).
@@ -98,6 +98,9 @@ impl GuidingField {
             if a.selection.probability != b.selection.probability {
                 return differs(format!("the guide probabilities of tree {i} differ"));
             }
+            if a.continuations.estimate != b.continuations.estimate {
+                return differs(format!("the continuation estimates of tree {i} differ"));
+            }
         }
         // Checked everything first: a refused merge leaves this field untouched.
         for (a, b) in self.trees.iter_mut().zip(&other.trees) {
@@ -121,6 +124,7 @@ impl GuidingField {
                 x.add_quadrants(y.get());
             }
             a.selection.add_sums(b.selection.sums());
+            a.continuations.add_recorded(&b.continuations.recorded());
         }
         self.rejected.add(&other.rejected.get());
         Ok(())

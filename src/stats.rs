@@ -75,7 +75,10 @@ pub struct FieldStats {
     pub samples_recorded: u64,
     /// Samples recorded over the field's life, the current iteration included.
     pub samples_recorded_total: u64,
-    /// Samples rejected over the field's life, by reason.
+    /// Continuations recorded in the current iteration
+    /// ([`GuidingField::record_continuation`](crate::GuidingField::record_continuation)).
+    pub continuations_recorded: u64,
+    /// Samples and continuations rejected over the field's life, by reason.
     pub rejected: Rejections,
     /// Spatial splits refused by `max_spatial_nodes` or `max_memory_bytes`, over the field's life.
     pub spatial_splits_refused: u64,

@@ -3,7 +3,8 @@
 
 use glam::Vec3;
 use sdguide::{
-    CacheError, DirectionalFilter, GuidingConfig, GuidingField, MergeError, Refinement, Sample,
+    CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
+    MergeError, Refinement, Sample,
 };
 use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds};
 
@@ -16,8 +17,8 @@ fn workload() -> Workload {
     }
 }
 
-/// A small but real field: a few spatial leaves, trees several levels deep, and statistics
-/// recorded in the current iteration.
+/// A small but real field: a few spatial leaves, trees several levels deep, continuation
+/// estimates, and statistics recorded in the current iteration.
 fn small_field() -> GuidingField {
     small_field_with(DirectionalFilter::default())
 }
@@ -32,8 +33,12 @@ fn small_field_with(directional_filter: DirectionalFilter) -> GuidingField {
         ..GuidingConfig::default()
     };
     let mut field = GuidingField::new(room_bounds(), config).unwrap();
-    workload().train(&mut field, 2, 8_000);
+    workload().train(&mut field, 1, 8_000);
+    record_continuations(&field, 1, 4_000);
+    workload().record_iteration(&field, 1, 16_000);
+    field.refine();
     workload().record_iteration(&field, 2, 300);
+    record_continuations(&field, 2, 500);
     field.record(&Sample {
         position: Vec3::splat(f32::NAN),
         direction: Vec3::Z,
@@ -42,6 +47,25 @@ fn small_field_with(directional_filter: DirectionalFilter) -> GuidingField {
         ..Sample::default()
     });
     field
+}
+
+/// `n` continuations at the positions of workload samples, with values and costs that vary.
+fn continuations(seed: u64, n: usize, field: &GuidingField) -> Vec<Continuation> {
+    samples(seed, n, field)
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Continuation {
+            position: s.position,
+            value: 0.3 * s.value,
+            cost: 1.0 + (i % 7) as f32,
+        })
+        .collect()
+}
+
+fn record_continuations(field: &GuidingField, seed: u64, n: usize) {
+    for c in continuations(seed ^ 0xC0, n, field) {
+        field.record_continuation(&c);
+    }
 }
 
 fn samples(seed: u64, n: usize, field: &GuidingField) -> Vec<Sample> {
@@ -60,6 +84,7 @@ fn assert_same(a: &GuidingField, b: &GuidingField) {
     let mut rng = Rng::new(77);
     for _ in 0..2000 {
         let x = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        assert_eq!(a.continuation(x), b.continuation(x));
         let (da, db) = (a.distribution(x), b.distribution(x));
         let u = rng.next_vec2();
         let (dir, pdf) = da.sample(u);
@@ -78,6 +103,15 @@ fn a_loaded_field_is_the_saved_field_and_training_continues() {
     for filter in FILTERS {
         let field = small_field_with(filter);
         assert!(field.stats().spatial_leaves > 2 && field.stats().directional_depth > 2);
+        let estimated = field
+            .cells()
+            .filter(|c| field.continuation(c.bounds.center()).count >= 16)
+            .count();
+        assert!(
+            estimated > 2,
+            "{estimated} cells with a continuation estimate"
+        );
+        assert!(field.stats().continuations_recorded == 500);
         let mut bytes = Vec::new();
         field.save(&mut bytes).unwrap();
         assert_eq!(bytes, field.to_bytes());
@@ -203,14 +237,25 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 2), &parts(&bytes)),
+        assemble((2, 3), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
     // The same sections as a 2.0 file (2.1 and 2.2 only added a filter value and a rule value
-    // this field does not use).
+    // this field does not use, 2.3 an optional section).
     let older = GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))).unwrap();
     assert_same(&field, &older);
+    // A 2.2 file, without the continuations: it loads, with no continuation estimates and
+    // everything else as saved.
+    let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 6).collect();
+    let older = GuidingField::from_bytes(&assemble((2, 2), &without)).unwrap();
+    assert_eq!(older.stats().continuations_recorded, 0);
+    assert!(
+        older
+            .cells()
+            .all(|c| older.continuation(c.bounds.center()) == ContinuationEstimate::default())
+    );
+    assert_eq!(older.to_bytes().len(), bytes.len());
     // A 2.7 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
@@ -229,7 +274,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 2)));
+            assert_eq!((found, supported), ((3, 0), (2, 3)));
         }
         other => panic!("{other:?}"),
     }
@@ -377,6 +422,38 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "selection",
         "sums",
     );
+    // CONTINUATIONS: a count that differs from the trees', a negative sum of squares in the
+    // first tree's estimate, a cost in the recorded sums of a leaf that counted nothing.
+    corrupt(
+        forge(&bytes, 6, 0, 1u32.to_le_bytes()),
+        "continuations",
+        "estimates",
+    );
+    corrupt(
+        forge(
+            &bytes,
+            6,
+            4 + 8 + 4,
+            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
+        ),
+        "continuations",
+        "estimate",
+    );
+    let p = parts(&bytes);
+    let body = &p.iter().find(|s| s.0 == 6).unwrap().2;
+    let empty = (0..body.len().saturating_sub(4) / 64)
+        .find(|&i| body[4 + 64 * i + 56..4 + 64 * i + 64] == [0; 8])
+        .expect("a tree that recorded no continuation in the iteration");
+    corrupt(
+        forge(
+            &bytes,
+            6,
+            4 + 64 * empty + 32 + 16 + 4,
+            1.0f64.to_bits().to_le_bytes()[4..].try_into().unwrap(),
+        ),
+        "continuations",
+        "recorded",
+    );
 }
 
 #[test]
@@ -386,7 +463,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 2)));
+            assert_eq!((found, supported), ((1, 0), (2, 3)));
         }
         other => panic!("{other:?}"),
     }
@@ -424,8 +501,15 @@ fn merged_workers_refine_like_one_process(filter: DirectionalFilter) {
     let worker = || GuidingField::from_bytes(&broadcast).unwrap();
     let (mut a, b, mut union) = (worker(), worker(), worker());
     let (s1, s2) = (samples(10, 20_000, &a), samples(11, 20_000, &a));
+    let (c1, c2) = (continuations(12, 3_000, &a), continuations(13, 3_000, &a));
     a.record_all(&s1);
     b.record_all(&s2);
+    for (c, field) in c1.iter().map(|c| (c, &a)).chain(c2.iter().map(|c| (c, &b))) {
+        field.record_continuation(c);
+    }
+    for c in c1.iter().chain(&c2) {
+        union.record_continuation(c);
+    }
     b.record(&Sample {
         position: Vec3::ZERO,
         direction: Vec3::Z,
@@ -464,6 +548,14 @@ fn merged_workers_refine_like_one_process(filter: DirectionalFilter) {
     union.refine();
     assert_eq!(a.stats(), union.stats());
     for (ca, cu) in a.cells().zip(union.cells()) {
+        // The continuation sums: the same terms in two groupings, as above.
+        let x = ca.bounds.center();
+        let (ea, eu) = (a.continuation(x), union.continuation(x));
+        assert_eq!(ea.count, eu.count);
+        let tol = 2.0 * (c1.len() + c2.len()) as f64 * f64::EPSILON;
+        for (p, q) in [(ea.sum, eu.sum), (ea.sum_sq, eu.sum_sq), (ea.cost, eu.cost)] {
+            assert!((p - q).abs() <= tol * q, "{ea:?} {eu:?}");
+        }
         let (la, lu) = (ca.distribution().leaves(), cu.distribution().leaves());
         assert_eq!(la.len(), lu.len());
         for ((cell_a, pa), (cell_u, pu)) in la.iter().zip(&lu) {

@@ -56,6 +56,16 @@
 #define SDG_REFINEMENT_VARIANCE_GAIN 1
 
 /*
+ Splitting mode: Russian roulette only (factors up to 1).
+ */
+#define SDG_SPLITTING_ROULETTE 0
+
+/*
+ Splitting mode: roulette and splitting (factors up to `max_splits`).
+ */
+#define SDG_SPLITTING_ROULETTE_AND_SPLITTING 1
+
+/*
  What a call did. Negative values are errors; see `sdg_last_error()` for the message.
  */
 typedef enum {
@@ -227,6 +237,52 @@ typedef struct {
 } sdg_sample;
 
 /*
+ One traced continuation of a path vertex (see the Rust `Continuation`): at `position`, the
+ continuation's estimate `value` of the light the vertex reflects (`f·cos·L_i/p`, with every
+ roulette and splitting weight below the vertex and not the vertex's own), and its `cost`.
+ */
+typedef struct {
+  /*
+   The vertex.
+   */
+  sdg_vec3 position;
+  /*
+   Non-negative estimate of the reflected light (luminance).
+   */
+  float value;
+  /*
+   Non-negative cost of tracing the continuation (rays, say).
+   */
+  float cost;
+} sdg_continuation;
+
+/*
+ The image-wide terms of efficiency-aware roulette and splitting (see the Rust `Splitting`).
+ */
+typedef struct {
+  /*
+   `SDG_SPLITTING_ROULETTE` or `SDG_SPLITTING_ROULETTE_AND_SPLITTING`.
+   */
+  uint32_t mode;
+  /*
+   The image's per-sample relative variance, averaged over pixels.
+   */
+  double relative_variance;
+  /*
+   The mean cost of a camera sample, in the unit of `sdg_continuation::cost`.
+   */
+  double cost;
+  /*
+   The smallest survival probability, in (0, 1] (0.05 is the library's default).
+   */
+  float min_survival;
+  /*
+   The largest factor, finite and at least 1 (8 is the library's default).
+   */
+  float max_splits;
+} sdg_splitting;
+
+/*
  A snapshot of a field's shape and bookkeeping.
  */
 typedef struct {
@@ -338,6 +394,36 @@ sdg_status sdg_field_record(const sdg_field *field, const sdg_sample *sample);
  `field` must be null or valid; `samples` must be null or point to `count` samples.
  */
 sdg_status sdg_field_record_batch(const sdg_field *field, const sdg_sample *samples, size_t count);
+
+/*
+ Records one traced continuation of a path vertex, for roulette and splitting. Returns
+ `SDG_STATUS_SAMPLE_REJECTED` (and counts it) for one the field rejects (a position that is
+ not finite or out of bounds, a value or cost that is negative or not finite); any number of
+ threads may record at once.
+
+ # Safety
+ `field` and `continuation` must be null or valid pointers.
+ */
+sdg_status sdg_field_record_continuation(const sdg_field *field,
+                                         const sdg_continuation *continuation);
+
+/*
+ Writes the splitting factor at `position` (see the Rust `Splitting::factor`): how many
+ continuations to trace in expectation (below 1, the survival probability), given the
+ path's throughput weight `throughput` and the pixel's `sqrt(I² + ε)` `pixel`. Writes 0 when
+ there is no factor (the cell's estimate is too thin, or an input is unusable): the renderer
+ then uses its own roulette. `SDG_STATUS_INVALID_ARGUMENT` for an unknown mode or bounds out
+ of range.
+
+ # Safety
+ `field` and `policy` must be null or valid; `factor` null or valid for writes.
+ */
+sdg_status sdg_field_splitting_factor(const sdg_field *field,
+                                      sdg_vec3 position,
+                                      const sdg_splitting *policy,
+                                      float throughput,
+                                      float pixel,
+                                      float *factor);
 
 /*
  Draws a direction from the distribution at `position` with the uniform numbers `u0`, `u1`

@@ -32,8 +32,8 @@ use glam::{Vec2, Vec3};
 use parking_lot::lock_api::ArcRwLockReadGuard;
 use parking_lot::{RawRwLock, RwLock};
 use sdguide::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
-    SpatialFilter,
+    Aabb, Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement,
+    Sample, SpatialFilter, Splitting, SplittingMode,
 };
 use std::cell::{Cell, RefCell};
 use std::ffi::{CStr, CString, c_char};
@@ -172,6 +172,41 @@ pub struct sdg_sample {
     pub bsdf_pdf: f32,
     /// The guide's pdf of the direction.
     pub guide_pdf: f32,
+}
+
+/// Splitting mode: Russian roulette only (factors up to 1).
+pub const SDG_SPLITTING_ROULETTE: u32 = 0;
+/// Splitting mode: roulette and splitting (factors up to `max_splits`).
+pub const SDG_SPLITTING_ROULETTE_AND_SPLITTING: u32 = 1;
+
+/// One traced continuation of a path vertex (see the Rust `Continuation`): at `position`, the
+/// continuation's estimate `value` of the light the vertex reflects (`f·cos·L_i/p`, with every
+/// roulette and splitting weight below the vertex and not the vertex's own), and its `cost`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct sdg_continuation {
+    /// The vertex.
+    pub position: sdg_vec3,
+    /// Non-negative estimate of the reflected light (luminance).
+    pub value: f32,
+    /// Non-negative cost of tracing the continuation (rays, say).
+    pub cost: f32,
+}
+
+/// The image-wide terms of efficiency-aware roulette and splitting (see the Rust `Splitting`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct sdg_splitting {
+    /// `SDG_SPLITTING_ROULETTE` or `SDG_SPLITTING_ROULETTE_AND_SPLITTING`.
+    pub mode: u32,
+    /// The image's per-sample relative variance, averaged over pixels.
+    pub relative_variance: f64,
+    /// The mean cost of a camera sample, in the unit of `sdg_continuation::cost`.
+    pub cost: f64,
+    /// The smallest survival probability, in (0, 1] (0.05 is the library's default).
+    pub min_survival: f32,
+    /// The largest factor, finite and at least 1 (8 is the library's default).
+    pub max_splits: f32,
 }
 
 /// A snapshot of a field's shape and bookkeeping.
@@ -533,6 +568,72 @@ pub unsafe extern "C" fn sdg_field_record_batch(
             }
         }
         Ok(status)
+    })
+}
+
+/// Records one traced continuation of a path vertex, for roulette and splitting. Returns
+/// `SDG_STATUS_SAMPLE_REJECTED` (and counts it) for one the field rejects (a position that is
+/// not finite or out of bounds, a value or cost that is negative or not finite); any number of
+/// threads may record at once.
+///
+/// # Safety
+/// `field` and `continuation` must be null or valid pointers.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_field_record_continuation(
+    field: *const sdg_field,
+    continuation: *const sdg_continuation,
+) -> sdg_status {
+    guard(|| {
+        // SAFETY: the caller's contract.
+        let (f, c) = unsafe { (arg(field, "field")?, arg(continuation, "continuation")?) };
+        let c = Continuation {
+            position: c.position.into(),
+            value: c.value,
+            cost: c.cost,
+        };
+        Ok(match shared(&f.inner).try_record_continuation(&c) {
+            Ok(()) => sdg_status::Ok,
+            Err(_) => sdg_status::SampleRejected,
+        })
+    })
+}
+
+/// Writes the splitting factor at `position` (see the Rust `Splitting::factor`): how many
+/// continuations to trace in expectation (below 1, the survival probability), given the
+/// path's throughput weight `throughput` and the pixel's `sqrt(I² + ε)` `pixel`. Writes 0 when
+/// there is no factor (the cell's estimate is too thin, or an input is unusable): the renderer
+/// then uses its own roulette. `SDG_STATUS_INVALID_ARGUMENT` for an unknown mode or bounds out
+/// of range.
+///
+/// # Safety
+/// `field` and `policy` must be null or valid; `factor` null or valid for writes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_field_splitting_factor(
+    field: *const sdg_field,
+    position: sdg_vec3,
+    policy: *const sdg_splitting,
+    throughput: f32,
+    pixel: f32,
+    factor: *mut f32,
+) -> sdg_status {
+    guard(|| {
+        // SAFETY: the caller's contract.
+        let (f, p) = unsafe { (arg(field, "field")?, arg(policy, "policy")?) };
+        let mode = match p.mode {
+            SDG_SPLITTING_ROULETTE => SplittingMode::Roulette,
+            SDG_SPLITTING_ROULETTE_AND_SPLITTING => SplittingMode::RouletteAndSplitting,
+            m => return fail(sdg_status::InvalidArgument, format!("unknown mode {m}")),
+        };
+        let splitting = Splitting::new(mode, p.relative_variance, p.cost)
+            .with_bounds(p.min_survival, p.max_splits)
+            .or_else(|e| fail(sdg_status::InvalidArgument, e.to_string()))?;
+        let estimate = shared(&f.inner).continuation(position.into());
+        let q = splitting
+            .factor(&estimate, throughput, pixel)
+            .unwrap_or(0.0);
+        // SAFETY: the caller's contract.
+        unsafe { put(factor, "factor", q) }?;
+        Ok(sdg_status::Ok)
     })
 }
 

@@ -542,3 +542,76 @@ fn a_distribution_with_a_normal_samples_the_product_with_the_cosine() {
         sdg_field_destroy(f);
     }
 }
+
+#[test]
+fn continuations_are_recorded_and_give_a_splitting_factor() {
+    let f = field();
+    let policy = sdg_splitting {
+        mode: SDG_SPLITTING_ROULETTE_AND_SPLITTING,
+        relative_variance: 0.25,
+        cost: 10.0,
+        min_survival: 0.05,
+        max_splits: 8.0,
+    };
+    let c = sdg_continuation {
+        position: v(0.5, 0.5, 0.5),
+        value: 2.0,
+        cost: 2.5,
+    };
+    let mut q = -1.0f32;
+    // SAFETY: valid pointers throughout; the field is destroyed last.
+    unsafe {
+        // Before any estimate: no factor (0).
+        assert_eq!(
+            sdg_field_splitting_factor(f, v(0.5, 0.5, 0.5), &policy, 1.0, 1.0, &mut q),
+            sdg_status::Ok
+        );
+        assert_eq!(q, 0.0);
+        for _ in 0..32 {
+            assert_eq!(sdg_field_record_continuation(f, &c), sdg_status::Ok);
+        }
+        let bad = sdg_continuation {
+            cost: f32::NAN,
+            ..c
+        };
+        assert_eq!(
+            sdg_field_record_continuation(f, &bad),
+            sdg_status::SampleRejected
+        );
+        assert_eq!(
+            sdg_field_record_continuation(null(), &c),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_record_continuation(f, null()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(sdg_field_refine(f), sdg_status::Ok);
+        // Mean 2, second moment 4, cost 2.5: (T/P)·sqrt(M₂·C̄/(V̄·c)) = 0.05·2·4 = 0.4.
+        assert_eq!(
+            sdg_field_splitting_factor(f, v(0.5, 0.5, 0.5), &policy, 0.05, 1.0, &mut q),
+            sdg_status::Ok
+        );
+        assert!((q - 0.4).abs() < 1e-6, "{q}");
+        // An unknown mode, bounds out of range and null pointers are refused.
+        let unknown = sdg_splitting { mode: 7, ..policy };
+        assert_eq!(
+            sdg_field_splitting_factor(f, v(0.5, 0.5, 0.5), &unknown, 1.0, 1.0, &mut q),
+            sdg_status::InvalidArgument
+        );
+        let bounds = sdg_splitting {
+            min_survival: 0.0,
+            ..policy
+        };
+        assert_eq!(
+            sdg_field_splitting_factor(f, v(0.5, 0.5, 0.5), &bounds, 1.0, 1.0, &mut q),
+            sdg_status::InvalidArgument
+        );
+        assert!(last_error().contains("min_survival"), "{}", last_error());
+        assert_eq!(
+            sdg_field_splitting_factor(f, v(0.5, 0.5, 0.5), &policy, 1.0, 1.0, null_mut()),
+            sdg_status::NullPointer
+        );
+        sdg_field_destroy(f);
+    }
+}

@@ -1,23 +1,30 @@
 //! The path tracer, and the reference for wiring sdguide into one.
 //!
 //! A unidirectional path tracer with next-event estimation (unless the scene turns it off),
-//! multiple importance sampling (power heuristic) and Russian roulette; smooth dielectrics are
-//! delta vertices, passed through without a light sample or a guide lookup. With guiding, every
-//! scattering direction is drawn from the **one-sample mixture**
-//! `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's distribution at the vertex
-//! and `a` its learned guide probability. The wiring points are marked `GUIDING:` below; there
-//! are four:
+//! multiple importance sampling (power heuristic), and Russian roulette — classic, by the
+//! path's throughput, or efficiency-aware roulette and splitting from the field's continuation
+//! estimates. Paths are traced depth first, recursively, so that a vertex may have several
+//! continuations. Smooth dielectrics are delta vertices, passed through without a light sample
+//! or a guide lookup. With guiding, every scattering direction is drawn from the **one-sample
+//! mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's distribution at
+//! the vertex and `a` its learned guide probability. The wiring points are marked `GUIDING:`
+//! below; there are four:
 //!
 //! 1. at a vertex, look up the distribution once, as its product with the clamped cosine about
 //!    the shading normal (`field.distribution(x).at_surface(n)`: every guided material here
 //!    reflects only, so nothing below the surface is worth a sample);
 //! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
 //!    and for every next-event direction, since MIS must weigh the strategy actually used;
-//! 3. keep, per vertex, what the path later adds to the radiance arriving along the sampled
-//!    direction;
-//! 4. once the path is finished, record every vertex: position, direction, the luminance of that
-//!    incident radiance, the mixture pdf, and the mixture terms the guide probability learns
-//!    from. Between training passes the caller refines the field (no thread may render then).
+//! 3. a continuation's value is the radiance arriving along its direction, every later
+//!    roulette and splitting weight included: what the recursive call returns;
+//! 4. when it returns, record the vertex: position, direction, the luminance of that incident
+//!    radiance, the mixture pdf, and the mixture terms the guide probability learns from.
+//!    Between training passes the caller refines the field (no thread may render then).
+//!
+//! With roulette and splitting ([`Continuations`]), each vertex asks the factor of its cell's
+//! continuation estimate, traces that many continuations in expectation, weighs each by its
+//! inverse, and records every one it traced as a `Continuation` (its estimate of the reflected
+//! light and the rays it cost).
 //!
 //! With the `openpgl` feature, the same four points serve Intel Open PGL (`Guide::OpenPgl`):
 //! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
@@ -29,7 +36,8 @@ use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::Vec2;
 use glam::Vec3;
-use sdguide::{GuidingField, Sample, SurfaceDistribution};
+use sdguide::splitting::continuations;
+use sdguide::{Continuation, GuidingField, Sample, Splitting, SurfaceDistribution};
 
 /// Longest path, in scattering events.
 pub const MAX_DEPTH: usize = 10;
@@ -250,234 +258,326 @@ impl<'a> VertexSampler<'a> {
     }
 }
 
-/// What one vertex of a path needs for recording into the field.
-#[derive(Clone, Copy, Debug, Default)]
-struct GuideVertex {
-    position: Vec3,
-    direction: Vec3,
-    pdf: f32,
-    bsdf_pdf: f32,
-    guide_pdf: f32,
-    bsdf_cos: Vec3,
-    /// Distance to the next vertex along `direction` (infinite until it is found).
-    distance: f32,
-    /// Throughput from the radiance arriving at this vertex to the path's current end.
-    throughput: Vec3,
-    /// Radiance that arrived along `direction` so far.
-    radiance: Vec3,
-}
-
-/// The vertices of one path, on the stack.
-struct PathLog {
-    vertices: [GuideVertex; MAX_DEPTH],
-    len: usize,
-}
-
-impl PathLog {
-    fn new() -> Self {
-        PathLog {
-            vertices: [GuideVertex::default(); MAX_DEPTH],
-            len: 0,
-        }
-    }
-
-    /// Radiance `c` (before the current vertex's throughput) reached the path's end: it arrives
-    /// at every earlier vertex, scaled by what lies in between.
-    fn add(&mut self, c: Vec3) {
-        for v in &mut self.vertices[..self.len] {
-            v.radiance += v.throughput * c;
-        }
-    }
-
-    /// The path scattered with weight `factor` at its end: earlier vertices see through it.
-    fn scale(&mut self, factor: Vec3) {
-        for v in &mut self.vertices[..self.len] {
-            v.throughput *= factor;
-        }
-    }
-
-    fn push(&mut self, v: GuideVertex) {
-        self.vertices[self.len] = v;
-        self.len += 1;
-    }
-
-    /// The path hit something `distance` past its last vertex (or past a dielectric after it):
-    /// the first hit after a vertex is the one its direction reaches.
-    fn reached(&mut self, distance: f32) {
-        if let Some(v) = self.vertices[..self.len].last_mut()
-            && v.distance.is_infinite()
-        {
-            v.distance = distance;
-        }
-    }
-
-    /// GUIDING (4): records every vertex, once the path is finished.
-    fn record(&self, guide: Guide<'_>) {
-        let vertices = &self.vertices[..self.len];
-        match guide {
-            Guide::Sdguide(field) => {
-                for v in vertices {
-                    let sample = Sample {
-                        position: v.position,
-                        direction: v.direction,
-                        value: luminance(v.radiance),
-                        pdf: v.pdf,
-                        ..Sample::default()
-                    }
-                    .with_mixture(
-                        luminance(v.radiance * v.bsdf_cos),
-                        v.bsdf_pdf,
-                        v.guide_pdf,
-                    );
-                    field.record(&sample);
-                }
-            }
-            #[cfg(feature = "openpgl")]
-            Guide::OpenPgl(field) => {
-                let mut records = [crate::openpgl::Record::default(); MAX_DEPTH];
-                for (r, v) in records.iter_mut().zip(vertices) {
-                    *r = crate::openpgl::Record {
-                        position: v.position,
-                        direction: v.direction,
-                        radiance: luminance(v.radiance),
-                        pdf: v.pdf,
-                        distance: v.distance,
-                    };
-                }
-                field.record(&records[..vertices.len()]);
-            }
-        }
-    }
-}
-
 /// MIS weight of a strategy with pdf `a` against one with pdf `b` (power heuristic, β = 2).
 fn power_heuristic(a: f32, b: f32) -> f32 {
     let (a2, b2) = (a * a, b * b);
     if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
 }
 
-/// The radiance arriving along `ray` (one path sample), guided when `guiding` is given.
-pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, mut ray: Ray, rng: &mut Rng) -> Vec3 {
-    let guide = guiding.map(|g| g.field);
-    let mut log = PathLog::new();
-    let mut l = Vec3::ZERO;
-    let mut beta = Vec3::ONE;
-    // The pdf the current ray's direction was drawn with (None for the camera ray) and where.
-    let mut previous: Option<(Vec3, f32)> = None;
-    for depth in 0..=MAX_DEPTH {
-        let Some(hit) = scene.intersect(&ray) else {
-            break;
-        };
-        log.reached(hit.t);
-        let wo = -ray.direction;
-        let emitted = scene.emitted(&hit, wo);
-        if emitted != Vec3::ZERO {
-            let weight = match previous {
-                Some((x, pdf)) if scene.next_event => {
-                    power_heuristic(pdf, scene.light_pdf(x, &hit, ray.direction))
-                }
-                _ => 1.0,
-            };
-            l += beta * emitted * weight;
-            log.add(emitted * weight);
-        }
-        if depth == MAX_DEPTH {
-            break;
-        }
-        let material = scene.material(&hit);
-        let normal = hit.normal_toward(wo);
-        if material.is_dielectric() {
-            // A delta vertex: no light sample reaches through it and no guide can sample it, so
-            // the path goes on in the one direction Fresnel picks, with weight 1, and the vertex
-            // is not recorded; the vertex before it records the radiance arriving through the
-            // glass, which is what a guide there learns to aim at.
-            let frame = Frame::new(normal);
-            let entering = hit.normal.dot(wo) > 0.0;
-            let local = material.sample_dielectric(frame.to_local(wo), entering, rng.next_f32());
-            // What the path finds next was reached by no strategy a light sample competes with.
-            previous = None;
-            ray = Ray::leaving(
-                hit.position,
-                hit.normal,
-                frame.to_world(local),
-                f32::INFINITY,
-            );
-            continue;
-        }
-        let lookup = match guide {
-            Some(g) if g.draws_lookup() => rng.next_f32(),
-            _ => 0.0,
-        };
-        let mut sampler =
-            VertexSampler::with_guide(hit.position, normal, wo, material, guide, lookup);
-        if let Some(a) = guiding.and_then(|g| g.guide_probability) {
-            sampler = sampler.with_guide_probability(a);
-        }
+/// How the paths of a pass decide how many continuations to trace from a vertex: by classic
+/// throughput roulette, or efficiency-aware roulette and splitting from the continuation
+/// estimates of a field ([`sdguide::splitting`]).
+#[derive(Clone, Copy)]
+pub struct Continuations<'a> {
+    /// The field whose cells hold the continuation estimates (and learn them when `record`).
+    pub field: &'a GuidingField,
+    /// This pass's policy; `None` until the image has estimates (classic roulette meanwhile).
+    pub splitting: Option<Splitting>,
+    /// Per pixel, the value its relative error is taken against, `sqrt(I² + ε)` (empty
+    /// without a policy).
+    pub pixels: &'a [f32],
+    /// Whether every traced continuation is recorded into `field` (training passes).
+    pub record: bool,
+}
 
-        // Next-event estimation, weighed against the mixture that would also find the light.
-        let (pick, u) = (rng.next_f32(), rng.next_vec2());
-        let light = scene
-            .next_event
-            .then(|| scene.sample_light(hit.position, pick, u))
-            .flatten();
-        if let Some(light) = light {
-            let f = sampler.bsdf_cos(light.direction);
-            if f != Vec3::ZERO {
-                let shadow = Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
-                if !scene.occluded(&shadow) {
-                    let weight = power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
-                    let c = f * light.radiance * (weight / light.pdf);
-                    l += beta * c;
-                    log.add(c);
+/// Most rays one camera sample may trace before its vertices stop splitting (they may still
+/// end by roulette): a bound on the work a wrong estimate can cause, which keeps the estimate
+/// unbiased (each vertex weighs its continuations by the factor it used).
+pub const MAX_RAYS_PER_SAMPLE: u32 = 256;
+
+/// One camera sample's radiance, and what it cost.
+#[derive(Clone, Copy, Debug)]
+pub struct PathSample {
+    /// The radiance arriving along the camera ray.
+    pub radiance: Vec3,
+    /// Rays traced: intersections and shadow rays.
+    pub rays: u32,
+}
+
+/// The radiance arriving along `ray` (one path sample), guided when `guiding` is given, with
+/// classic roulette.
+pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, ray: Ray, rng: &mut Rng) -> Vec3 {
+    path_sample(scene, guiding, None, ray, rng).radiance
+}
+
+/// The radiance arriving along `ray` and its cost, guided when `guiding` is given, with
+/// roulette and splitting by `continuations` when given (`pixel`: the pixel's index into its
+/// `pixels`).
+pub fn path_sample(
+    scene: &Scene,
+    guiding: Option<Guiding<'_>>,
+    continuations: Option<(&Continuations<'_>, usize)>,
+    ray: Ray,
+    rng: &mut Rng,
+) -> PathSample {
+    let policy = continuations.and_then(|(c, pixel)| {
+        let splitting = c.splitting?;
+        Some((splitting, *c.pixels.get(pixel)?))
+    });
+    let mut path = Path {
+        scene,
+        guiding,
+        continuations: continuations.map(|(c, _)| *c),
+        policy,
+        rng,
+        rays: 0,
+    };
+    let radiance = path.trace(ray, 0, Vec3::ONE, None).radiance;
+    PathSample {
+        radiance,
+        rays: path.rays,
+    }
+}
+
+/// One camera sample's tree of continuations, traced depth first.
+struct Path<'s, 'a> {
+    scene: &'s Scene,
+    guiding: Option<Guiding<'a>>,
+    continuations: Option<Continuations<'a>>,
+    /// The splitting policy and the pixel's `sqrt(I² + ε)`, when there is a policy.
+    policy: Option<(Splitting, f32)>,
+    rng: &'s mut Rng,
+    rays: u32,
+}
+
+/// What a ray brought back.
+struct Traced {
+    /// The radiance arriving along it.
+    radiance: Vec3,
+    /// Distance to its first hit (infinite if none).
+    distance: f32,
+}
+
+impl Path<'_, '_> {
+    /// The radiance arriving along `ray`, which leaves the path's `depth`-th scattering event
+    /// with throughput `beta` from the camera (every roulette and splitting weight included);
+    /// `previous` is the pdf the ray's direction was drawn with and where (`None` for a camera
+    /// ray or after a dielectric).
+    fn trace(
+        &mut self,
+        mut ray: Ray,
+        mut depth: usize,
+        beta: Vec3,
+        mut previous: Option<(Vec3, f32)>,
+    ) -> Traced {
+        let scene = self.scene;
+        let guide = self.guiding.map(|g| g.field);
+        let mut first_hit = None;
+        let mut l = Vec3::ZERO;
+        loop {
+            self.rays += 1;
+            let Some(hit) = scene.intersect(&ray) else {
+                return Traced {
+                    radiance: Vec3::ZERO,
+                    distance: first_hit.unwrap_or(f32::INFINITY),
+                };
+            };
+            let distance = *first_hit.get_or_insert(hit.t);
+            let wo = -ray.direction;
+            let emitted = scene.emitted(&hit, wo);
+            if emitted != Vec3::ZERO {
+                let weight = match previous {
+                    Some((x, pdf)) if scene.next_event => {
+                        power_heuristic(pdf, scene.light_pdf(x, &hit, ray.direction))
+                    }
+                    _ => 1.0,
+                };
+                l += emitted * weight;
+            }
+            if depth == MAX_DEPTH {
+                return Traced {
+                    radiance: l,
+                    distance,
+                };
+            }
+            let material = scene.material(&hit);
+            let normal = hit.normal_toward(wo);
+            if material.is_dielectric() {
+                // A delta vertex: no light sample reaches through it and no guide can sample
+                // it, so the path goes on in the one direction Fresnel picks, with weight 1,
+                // and the vertex is not recorded; the vertex before it records the radiance
+                // arriving through the glass, which is what a guide there learns to aim at.
+                let frame = Frame::new(normal);
+                let entering = hit.normal.dot(wo) > 0.0;
+                let local =
+                    material.sample_dielectric(frame.to_local(wo), entering, self.rng.next_f32());
+                // What the path finds next was reached by no strategy a light sample competes
+                // with.
+                previous = None;
+                ray = Ray::leaving(
+                    hit.position,
+                    hit.normal,
+                    frame.to_world(local),
+                    f32::INFINITY,
+                );
+                depth += 1;
+                continue;
+            }
+            let lookup = match guide {
+                Some(g) if g.draws_lookup() => self.rng.next_f32(),
+                _ => 0.0,
+            };
+            let fixed = self.guiding.and_then(|g| g.guide_probability);
+            // A guide that is never drawn is not looked up (the field then only learns).
+            let guide = guide.filter(|_| fixed != Some(0.0));
+            let mut sampler =
+                VertexSampler::with_guide(hit.position, normal, wo, material, guide, lookup);
+            if let Some(a) = fixed {
+                sampler = sampler.with_guide_probability(a);
+            }
+
+            // Next-event estimation, weighed against the mixture that would also find the
+            // light.
+            let (pick, u) = (self.rng.next_f32(), self.rng.next_vec2());
+            let light = scene
+                .next_event
+                .then(|| scene.sample_light(hit.position, pick, u))
+                .flatten();
+            if let Some(light) = light {
+                let f = sampler.bsdf_cos(light.direction);
+                if f != Vec3::ZERO {
+                    let shadow =
+                        Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
+                    self.rays += 1;
+                    if !scene.occluded(&shadow) {
+                        let weight =
+                            power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
+                        l += f * light.radiance * (weight / light.pdf);
+                    }
                 }
             }
-        }
 
-        // Scatter.
-        let Some(s) = sampler.sample(rng) else {
-            break;
+            // How many continuations, each weighed by 1/q: the efficiency-aware factor where
+            // the cell has an estimate, else one, under classic roulette.
+            let factor = self.policy.and_then(|(splitting, pixel)| {
+                let estimate = self.continuations?.field.continuation(hit.position);
+                let q = splitting.factor(&estimate, luminance(beta), pixel)?;
+                // The camera vertex only plays roulette: there the rest of the image, which the
+                // factor takes to be the whole image, is mostly this vertex's own continuations,
+                // so every factor is its own fixed point and estimation noise alone sets it
+                // (measured on `door`: 90% of camera vertices at the largest factor). Its split
+                // would save only the camera ray.
+                Some(if depth == 0 || self.rays >= MAX_RAYS_PER_SAMPLE {
+                    q.min(1.0)
+                } else {
+                    q
+                })
+            });
+            let (n, weight) = match factor {
+                Some(q) => continuations(q, self.rng.next_f32()),
+                None => (1, 1.0),
+            };
+            for _ in 0..n {
+                l += weight
+                    * self.continue_from(&hit, &sampler, depth, beta * weight, factor.is_none());
+            }
+            return Traced {
+                radiance: l,
+                distance,
+            };
+        }
+    }
+
+    /// One continuation from a vertex: a direction from its sampler and the radiance along it;
+    /// returns the continuation's estimate of the light the vertex reflects, `f·L_i/q`. With
+    /// `classic`, the path then meets throughput roulette (from the roulette depth on). The
+    /// guide's sample and the continuation are recorded when the pass records.
+    fn continue_from(
+        &mut self,
+        hit: &crate::scene::Hit,
+        sampler: &VertexSampler<'_>,
+        depth: usize,
+        beta: Vec3,
+        classic: bool,
+    ) -> Vec3 {
+        let rays_before = self.rays;
+        let Some(s) = sampler.sample(self.rng) else {
+            return Vec3::ZERO;
         };
         let f = sampler.bsdf_cos(s.direction);
         let factor = f / s.pdf.mixture;
-        beta *= factor;
-        log.scale(factor);
-        if guiding.is_some_and(|g| g.record) {
-            // GUIDING (3): this vertex now waits for the radiance along `s.direction`. A guide
-            // direction below the surface (f = 0) ends the path, and is recorded too, with zero
-            // radiance: the field learns that nothing this vertex can use comes from there.
-            // Not recording it would leave those cells without samples, and a cell without
-            // samples borrows its parent's estimate (the field's shrinkage), which would keep
-            // sending half the guide's samples into the surface.
-            log.push(GuideVertex {
+        let beta = beta * factor;
+        // Classic roulette decides after the direction is drawn, so a vertex it ends still
+        // records its direction (with zero radiance): the recorded radiance, 1/survive times
+        // what arrived or nothing, is unbiased whatever the direction.
+        let survive = if classic && depth + 1 >= ROULETTE_DEPTH {
+            beta.max_element().min(0.95)
+        } else {
+            1.0
+        };
+        // GUIDING (3): a guide direction below the surface (f = 0) ends the continuation, and
+        // is recorded too, with zero radiance: the field learns that nothing this vertex can
+        // use comes from there. Not recording it would leave those cells without samples, and
+        // a cell without samples borrows its parent's estimate (the field's shrinkage), which
+        // would keep sending half the guide's samples into the surface.
+        let (incident, distance) = if f == Vec3::ZERO || self.rng.next_f32() >= survive {
+            (Vec3::ZERO, f32::INFINITY)
+        } else {
+            let ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
+            let t = self.trace(
+                ray,
+                depth + 1,
+                beta / survive,
+                Some((hit.position, s.pdf.mixture)),
+            );
+            (t.radiance / survive, t.distance)
+        };
+        let reflected = factor * incident;
+        if let Some(g) = self.guiding.filter(|g| g.record) {
+            // GUIDING (4): record the vertex: position, direction, the luminance of the
+            // incident radiance, the mixture pdf, and the mixture terms the guide probability
+            // learns from.
+            let integrand = luminance(f * incident);
+            record(
+                g.field,
+                hit.position,
+                &s,
+                luminance(incident),
+                integrand,
+                distance,
+            );
+        }
+        if let Some(c) = self.continuations.filter(|c| c.record) {
+            c.field.record_continuation(&Continuation {
                 position: hit.position,
-                direction: s.direction,
-                pdf: s.pdf.mixture,
-                bsdf_pdf: s.pdf.bsdf,
-                guide_pdf: s.pdf.guide,
-                bsdf_cos: f,
-                distance: f32::INFINITY,
-                throughput: Vec3::ONE,
-                radiance: Vec3::ZERO,
+                value: luminance(reflected),
+                cost: (self.rays - rays_before) as f32,
             });
         }
-        if f == Vec3::ZERO {
-            break;
-        }
-        if depth + 1 >= ROULETTE_DEPTH {
-            let survive = beta.max_element().min(0.95);
-            if rng.next_f32() >= survive {
-                break;
+        reflected
+    }
+}
+
+/// Records one vertex into the guide: the radiance `incident` (a luminance) arrived along the
+/// sampled direction `s`, `integrand` is `f·L_i` there, and `distance` is how far the direction
+/// reached (Open PGL's parallax compensation).
+fn record(
+    guide: Guide<'_>,
+    position: Vec3,
+    s: &DirectionSample,
+    incident: f32,
+    integrand: f32,
+    #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))] distance: f32,
+) {
+    match guide {
+        Guide::Sdguide(field) => {
+            let sample = Sample {
+                position,
+                direction: s.direction,
+                value: incident,
+                pdf: s.pdf.mixture,
+                ..Sample::default()
             }
-            beta /= survive;
-            // The survivors' radiance is divided by the survival probability, for every
-            // vertex's estimate too (including the one just pushed), so they stay unbiased.
-            log.scale(Vec3::splat(1.0 / survive));
+            .with_mixture(integrand, s.pdf.bsdf, s.pdf.guide);
+            field.record(&sample);
         }
-        previous = Some((hit.position, s.pdf.mixture));
-        ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
+        #[cfg(feature = "openpgl")]
+        Guide::OpenPgl(field) => field.record(&[crate::openpgl::Record {
+            position,
+            direction: s.direction,
+            radiance: incident,
+            pdf: s.pdf.mixture,
+            distance,
+        }]),
     }
-    if let Some(g) = guiding.filter(|g| g.record) {
-        log.record(g.field);
-    }
-    l
 }

@@ -7,7 +7,7 @@
 //!     [--spp N] [--rule both] [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
-//!     [--nee on|off]
+//!     [--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)]
 //! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
@@ -16,7 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement};
 use sdguide_render::image::{Image, side_by_side, write_png};
 use sdguide_render::reference;
-use sdguide_render::render::{Budget, Method, Outcome, Training, render};
+use sdguide_render::render::{Budget, Method, Outcome, Rrs, Training, render};
 use sdguide_render::scene::Scene;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -31,7 +31,8 @@ const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caus
 [--out DIR] [--threads N] [--seed N] [--cache FILE] \
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
-[--nee on|off] [--reference] [--probe CACHE]";
+[--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)] [--reference] \
+[--probe CACHE]";
 
 struct Args {
     /// The scenes to render, in order.
@@ -57,6 +58,8 @@ struct Args {
     probe: Option<PathBuf>,
     /// The Open PGL methods to run: with the cosine product or not.
     peers: Vec<bool>,
+    /// Roulette and splitting variants, each run with every method (the peer: classic only).
+    rrs: Vec<Rrs>,
 }
 
 fn number<T: std::str::FromStr>(flag: &str, value: &str) -> Result<T, String> {
@@ -89,6 +92,7 @@ fn parse() -> Result<Args, String> {
         } else {
             Vec::new()
         },
+        rrs: vec![Rrs::Classic],
     };
     let mut argv = std::env::args().skip(1);
     while let Some(flag) = argv.next() {
@@ -162,6 +166,17 @@ fn parse() -> Result<Args, String> {
                     _ => return Err(format!("bad value for --filter: {value}")),
                 }
             }
+            "--rrs" => {
+                a.rrs = value
+                    .split(',')
+                    .map(|v| match v {
+                        "classic" => Ok(Rrs::Classic),
+                        "ear" => Ok(Rrs::Ear),
+                        "ears" => Ok(Rrs::Ears),
+                        _ => Err(format!("bad value for --rrs: {value}")),
+                    })
+                    .collect::<Result<_, _>>()?;
+            }
             "--peer" => {
                 a.peers = match value.as_str() {
                     "none" => Vec::new(),
@@ -213,12 +228,12 @@ fn progress_bar(label: &str) -> ProgressBar {
 
 fn run_method(
     scene: &Scene,
-    method: Method,
+    (method, rrs): (Method, Rrs),
     args: &Args,
     seed: u64,
     cache: Option<GuidingField>,
 ) -> Result<Outcome, String> {
-    let bar = progress_bar(method.name());
+    let bar = progress_bar(&format!("{}{}", method.name(), rrs.suffix()));
     let progress = |phase: &str, fraction: f32, spp: u32| {
         bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
         bar.set_message(format!("{phase}, {spp} spp"));
@@ -238,6 +253,7 @@ fn run_method(
             },
             cache,
             guide_probability: args.guide_probability,
+            rrs,
         },
         &progress,
     )?;
@@ -299,13 +315,23 @@ fn run() -> Result<(), String> {
     }
     std::fs::create_dir_all(&args.out).map_err(|e| e.to_string())?;
 
-    let mut methods = vec![Method::Unguided];
-    methods.extend(args.rules.iter().map(|&r| Method::Guided(r)));
+    // Every method with every roulette (unguided classic first: the baseline of the ratios).
+    let mut methods: Vec<(Method, Rrs)> = Vec::new();
+    for &rrs in &args.rrs {
+        methods.push((Method::Unguided, rrs));
+    }
+    for &rule in &args.rules {
+        methods.extend(args.rrs.iter().map(|&rrs| (Method::Guided(rule), rrs)));
+    }
+    if !methods.contains(&(Method::Unguided, Rrs::Classic)) {
+        methods.insert(0, (Method::Unguided, Rrs::Classic));
+    }
+    methods.sort_by_key(|&(m, r)| (m != Method::Unguided || r != Rrs::Classic) as u8);
     #[cfg(feature = "openpgl")]
     methods.extend(
         args.peers
             .iter()
-            .map(|&cosine_product| Method::OpenPgl { cosine_product }),
+            .map(|&cosine_product| (Method::OpenPgl { cosine_product }, Rrs::Classic)),
     );
     let mut report = header(&args, &command);
     let mut summaries = Vec::new();
@@ -328,7 +354,13 @@ fn run() -> Result<(), String> {
 fn make_reference(scene: &Scene, args: &Args, command: &str) -> Result<(), String> {
     // Streams of its own, independent of every run compared with it.
     let seed = reference::seed(args.seed);
-    let outcome = run_method(scene, Method::Guided(LeafRule::L2), args, seed, None)?;
+    let outcome = run_method(
+        scene,
+        (Method::Guided(LeafRule::L2), Rrs::Classic),
+        args,
+        seed,
+        None,
+    )?;
     let path = reference::store(
         &reference::directory(),
         scene,
@@ -397,7 +429,12 @@ impl Run {
 
 /// Renders `scene` with every method from `seed`, writing each image (and trained cache) and
 /// the comparison sheet to the output directory.
-fn render_scene(scene: &Scene, methods: &[Method], args: &Args, seed: u64) -> Result<Run, String> {
+fn render_scene(
+    scene: &Scene,
+    methods: &[(Method, Rrs)],
+    args: &Args,
+    seed: u64,
+) -> Result<Run, String> {
     let reference = match reference::load(
         &reference::directory(),
         scene,
@@ -425,16 +462,16 @@ fn render_scene(scene: &Scene, methods: &[Method], args: &Args, seed: u64) -> Re
         String::new()
     };
     let mut outcomes = Vec::new();
-    for &method in methods {
+    for &(method, rrs) in methods {
         let reuse = match (method, &cache) {
             (Method::Guided(rule), Some(c)) if c.config().rule == rule => cache.take(),
             _ => None,
         };
         let reused = reuse.is_some();
-        let outcome = run_method(scene, method, args, seed, reuse)?;
+        let outcome = run_method(scene, (method, rrs), args, seed, reuse)?;
         let stem = args
             .out
-            .join(format!("{}-{}{suffix}", scene.name, method.name()));
+            .join(format!("{}-{}{suffix}", scene.name, outcome.name()));
         outcome
             .image
             .write_png(&stem.with_extension("png"), scene.exposure)
@@ -592,8 +629,8 @@ fn seed_table(run: &Run) -> String {
     );
     for (i, rendered) in run.outcomes.iter().enumerate() {
         let o = &rendered.outcome;
-        let training = match (o.method, rendered.reused) {
-            (Method::Unguided, _) => "—".to_string(),
+        let training = match (o.training_spp, rendered.reused) {
+            (0, false) => "—".to_string(),
             (_, true) => "from cache".to_string(),
             _ => format!(
                 "{:.1} s, {} spp",
@@ -617,7 +654,7 @@ fn seed_table(run: &Run) -> String {
             r,
             "| {} | {} | {training} | {:.1} s | {error} | {combined} | {ratio} | {per_sample} | \
              {cost:.2}× | {deviation} |",
-            o.method.name(),
+            o.name(),
             o.spp,
             o.total_time.as_secs_f32(),
         );
@@ -662,7 +699,7 @@ fn summary(scenes: &[(String, Vec<Run>)]) -> String {
             let _ = writeln!(
                 r,
                 "| {name} | {} | {} | {} | {} |",
-                runs[0].outcomes[i].outcome.method.name(),
+                runs[0].outcomes[i].outcome.name(),
                 column(|t| t.0),
                 column(|t| t.1),
                 column(|t| t.2)

@@ -3,14 +3,14 @@
 //! time counts against the budget).
 
 use crate::image::Image;
-use crate::integrator::{Guide, Guiding, radiance};
+use crate::integrator::{Continuations, Guide, Guiding, path_sample};
 use crate::material::luminance;
-use crate::passes::{PassImage, combine};
+use crate::passes::{PassImage, PixelEstimates, combine, splitting};
 use crate::rng::Rng;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule};
+use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, SplittingMode};
 use std::time::{Duration, Instant};
 
 /// Tile edge, pixels.
@@ -30,48 +30,55 @@ pub fn render_pass(
     pass: u32,
 ) {
     let size = (sum.width, sum.height);
-    render_samples(scene, guiding, size, spp, seed, pass, |pixel, l, _| {
-        sum.pixels[pixel] += l;
-    });
-}
-
-/// [`render_pass`] into a [`PassImage`], which also keeps each pixel's squared luminance (for
-/// the pass's variance).
-pub fn render_pass_image(
-    scene: &Scene,
-    guiding: Option<Guiding<'_>>,
-    image: &mut PassImage,
-    spp: u32,
-    seed: u64,
-    pass: u32,
-) {
-    let size = (image.sum.width, image.sum.height);
     render_samples(
         scene,
         guiding,
+        None,
         size,
-        spp,
-        seed,
-        pass,
+        (spp, seed, pass),
+        |pixel, l, _| {
+            sum.pixels[pixel] += l;
+        },
+    );
+}
+
+/// [`render_pass`] into a [`PassImage`], which also keeps each pixel's squared luminance (for
+/// the pass's variance) and the rays traced; with roulette and splitting by `continuations`
+/// when given.
+pub fn render_pass_image(
+    scene: &Scene,
+    guiding: Option<Guiding<'_>>,
+    continuations: Option<&Continuations<'_>>,
+    image: &mut PassImage,
+    (spp, seed, pass): (u32, u64, u32),
+) {
+    let size = (image.sum.width, image.sum.height);
+    let rays = render_samples(
+        scene,
+        guiding,
+        continuations,
+        size,
+        (spp, seed, pass),
         |pixel, l, squares| {
             image.sum.pixels[pixel] += l;
             image.squares[pixel] += squares;
         },
     );
     image.spp += spp;
+    image.rays += rays;
 }
 
-/// Renders `spp` samples of every pixel of a `width × height` image and hands each pixel's sums
-/// to `add`: its index, the sum of its samples and the sum of their squared luminance.
+/// Renders `spp` samples of every pixel of a `width × height` image (pass `pass` of a render
+/// seeded by `seed`) and hands each pixel's sums to `add`: its index, the sum of its samples
+/// and the sum of their squared luminance. Returns the rays traced.
 fn render_samples(
     scene: &Scene,
     guiding: Option<Guiding<'_>>,
+    continuations: Option<&Continuations<'_>>,
     (width, height): (usize, usize),
-    spp: u32,
-    seed: u64,
-    pass: u32,
+    (spp, seed, pass): (u32, u64, u32),
     mut add: impl FnMut(usize, Vec3, f64),
-) {
+) -> f64 {
     let aspect = width as f32 / height as f32;
     // One random stream per pixel and pass: the key `pass·2³² + pixel`, salted by the seed.
     // Salting with a pseudo-random function of the seed (not the seed itself) keeps renders with
@@ -80,19 +87,30 @@ fn render_samples(
     let tiles: Vec<(usize, usize)> = (0..height.div_ceil(TILE))
         .flat_map(|ty| (0..width.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
-    let rendered: Vec<Vec<(Vec3, f64)>> = tiles
+    let rendered: Vec<(Vec<(Vec3, f64)>, f64)> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
             let mut out = Vec::with_capacity(TILE * TILE);
+            let mut rays = 0.0;
             for y in y0..(y0 + TILE).min(height) {
                 for x in x0..(x0 + TILE).min(width) {
-                    let pixel = (y * width + x) as u64;
+                    let index = y * width + x;
+                    let pixel = index as u64;
                     let mut rng = Rng::new(salt ^ ((pass as u64) << 32 | pixel));
                     let (mut c, mut squares) = (Vec3::ZERO, 0.0);
                     for _ in 0..spp {
                         let film = (Vec2::new(x as f32, y as f32) + rng.next_vec2())
                             / Vec2::new(width as f32, height as f32);
-                        let l = radiance(scene, guiding, scene.camera.ray(film, aspect), &mut rng);
+                        let ray = scene.camera.ray(film, aspect);
+                        let sample = path_sample(
+                            scene,
+                            guiding,
+                            continuations.map(|c| (c, index)),
+                            ray,
+                            &mut rng,
+                        );
+                        rays += f64::from(sample.rays);
+                        let l = sample.radiance;
                         // A NaN or infinite path would poison the pixel; none should occur, and
                         // a debug build says so.
                         debug_assert!(l.is_finite(), "non-finite radiance {l}");
@@ -104,10 +122,12 @@ fn render_samples(
                     out.push((c, squares));
                 }
             }
-            out
+            (out, rays)
         })
         .collect();
-    for (&(x0, y0), tile) in tiles.iter().zip(rendered) {
+    let mut rays = 0.0;
+    for (&(x0, y0), (tile, tile_rays)) in tiles.iter().zip(rendered) {
+        rays += tile_rays;
         let mut sums = tile.into_iter();
         for y in y0..(y0 + TILE).min(height) {
             for x in x0..(x0 + TILE).min(width) {
@@ -116,6 +136,7 @@ fn render_samples(
             }
         }
     }
+    rays
 }
 
 /// A guiding field the demo can train: sdguide's, or the peer's.
@@ -124,11 +145,20 @@ pub trait Trainable {
     fn guide(&self) -> Guide<'_>;
     /// Rebuilds the sampling distributions from what was recorded (between passes).
     fn refine(&mut self);
+    /// The field as an sdguide field, whose cells also learn continuation estimates for
+    /// roulette and splitting (`None` for the peer's).
+    fn continuation_field(&self) -> Option<&GuidingField> {
+        None
+    }
 }
 
 impl Trainable for GuidingField {
     fn guide(&self) -> Guide<'_> {
         Guide::Sdguide(self)
+    }
+
+    fn continuation_field(&self) -> Option<&GuidingField> {
+        Some(self)
     }
 
     fn refine(&mut self) {
@@ -155,28 +185,113 @@ impl Trainable for crate::openpgl::Guide {
 pub fn training_pass(
     scene: &Scene,
     field: &mut impl Trainable,
-    (width, height): (usize, usize),
+    size: (usize, usize),
     spp: u32,
     seed: u64,
     iteration: u32,
     guide_probability: Option<f32>,
 ) -> PassImage {
+    let pass = TrainingPass {
+        size,
+        spp,
+        seed,
+        iteration,
+        guide_probability,
+    };
+    training_pass_with(scene, field, &pass, None)
+}
+
+/// What a training pass renders.
+#[derive(Clone, Copy, Debug)]
+pub struct TrainingPass {
+    /// Image size.
+    pub size: (usize, usize),
+    /// Samples per pixel.
+    pub spp: u32,
+    /// The render's seed.
+    pub seed: u64,
+    /// The pass's number among the training passes.
+    pub iteration: u32,
+    /// A fixed guide probability (`None`: the field's learned one, or the peer's).
+    pub guide_probability: Option<f32>,
+}
+
+/// [`training_pass`], and with `rrs` — a splitting mode and the render's passes so far — with
+/// efficiency-aware roulette and splitting, every traced continuation recorded into the field
+/// (an sdguide field; the peer's paths keep classic roulette).
+pub fn training_pass_with(
+    scene: &Scene,
+    field: &mut impl Trainable,
+    pass: &TrainingPass,
+    rrs: Option<(SplittingMode, &[PassImage])>,
+) -> PassImage {
     let guiding = Guiding {
         field: field.guide(),
         record: true,
-        guide_probability,
+        guide_probability: pass.guide_probability,
     };
-    let mut image = PassImage::new(width, height);
+    let mut image = PassImage::new(pass.size.0, pass.size.1);
+    let estimates =
+        rrs.and_then(|(mode, passes)| splitting(&passes.iter().collect::<Vec<_>>(), mode));
+    let continuations = match (rrs, field.continuation_field()) {
+        (Some(_), Some(f)) => Some(continuations_of(f, estimates.as_ref(), true)),
+        _ => None,
+    };
     render_pass_image(
         scene,
         Some(guiding),
+        continuations.as_ref(),
         &mut image,
-        spp,
-        seed,
-        TRAINING_PASS | iteration,
+        (pass.spp, pass.seed, TRAINING_PASS | pass.iteration),
     );
     field.refine();
     image
+}
+
+/// The continuation policy of a pass: `field`'s estimates, and the image's when there are any.
+fn continuations_of<'a>(
+    field: &'a GuidingField,
+    estimates: Option<&'a PixelEstimates>,
+    record: bool,
+) -> Continuations<'a> {
+    Continuations {
+        field,
+        splitting: estimates.map(|e| e.splitting),
+        pixels: estimates.map_or(&[], |e| &e.pixels),
+        record,
+    }
+}
+
+/// How a method decides how many continuations to trace from a vertex.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Rrs {
+    /// Classic Russian roulette by path throughput, from the third bounce.
+    #[default]
+    Classic,
+    /// Efficiency-aware Russian roulette (no splitting).
+    Ear,
+    /// Efficiency-aware Russian roulette and splitting.
+    Ears,
+}
+
+impl Rrs {
+    /// The library's splitting mode (`None`: classic).
+    pub fn mode(self) -> Option<SplittingMode> {
+        match self {
+            Rrs::Classic => None,
+            Rrs::Ear => Some(SplittingMode::Roulette),
+            Rrs::Ears => Some(SplittingMode::RouletteAndSplitting),
+        }
+    }
+
+    /// The suffix of a method's name in reports and file names.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Rrs::Classic => "",
+            Rrs::Ear => "-ear",
+            Rrs::Ears => "-ears",
+        }
+    }
 }
 
 /// A rendering method.
@@ -243,6 +358,8 @@ impl Default for Budget {
 pub struct Outcome {
     /// The method.
     pub method: Method,
+    /// Its roulette and splitting.
+    pub rrs: Rrs,
     /// The final image (average of the final render's samples).
     pub image: Image,
     /// The final image and the training passes' combined by inverse variance: what the
@@ -261,6 +378,11 @@ pub struct Outcome {
 }
 
 impl Outcome {
+    /// The method's name with its roulette and splitting, in reports and file names.
+    pub fn name(&self) -> String {
+        format!("{}{}", self.method.name(), self.rrs.suffix())
+    }
+
     /// Wall-clock time of the final render per sample per pixel (training excluded).
     pub fn time_per_spp(&self) -> Duration {
         (self.total_time.saturating_sub(self.training_time)) / self.spp.max(1)
@@ -286,6 +408,10 @@ pub struct Training<'a> {
     /// A fixed probability of sampling the guide instead of the BSDF; `None` uses the field's
     /// learned one.
     pub guide_probability: Option<f32>,
+    /// Roulette and splitting. Other than classic, unguided methods too train a field (which
+    /// learns only the continuation estimates: the guide is never drawn), sdguide's guided
+    /// methods learn them in the field they train, and the peer keeps classic roulette.
+    pub rrs: Rrs,
 }
 
 /// Renders `scene` with `method` at `width × height` within `budget`. A guided method trains a
@@ -312,12 +438,15 @@ pub fn render(
         (None, Some(n)) => spp as f32 / n as f32,
         (None, None) => 1.0,
     };
-    let schedule = Schedule {
+    let guiding_rrs = guiding.rrs;
+    let mode = guiding_rrs.mode();
+    let mut schedule = Schedule {
         start,
         budget,
         size: (width, height),
         seed,
         guide_probability: guiding.guide_probability,
+        mode,
     };
     let training_progress = |pass: u32, spp: u32| {
         progress(&format!("training, pass {pass}"), fraction(0), spp);
@@ -327,7 +456,15 @@ pub fn render(
     let mut peer = None;
     let mut trained = Trained::default();
     match method {
-        Method::Unguided => {}
+        Method::Unguided if mode.is_none() => {}
+        Method::Unguided => {
+            // A field that only learns continuations: its guide is never drawn.
+            let mut new = GuidingField::new(field_bounds(scene), guiding.config.clone())
+                .map_err(|e| e.to_string())?;
+            schedule.guide_probability = Some(0.0);
+            trained = schedule.train(scene, &mut new, &training_progress);
+            field = Some(new);
+        }
         Method::Guided(rule) => {
             field = Some(match guiding.cache {
                 Some(cached) => cached,
@@ -345,6 +482,7 @@ pub fn render(
         }
         #[cfg(feature = "openpgl")]
         Method::OpenPgl { cosine_product } => {
+            schedule.mode = None;
             let threads = rayon::current_num_threads();
             let mut new = crate::openpgl::Guide::new(field_bounds(scene), cosine_product, threads)?;
             trained = schedule.train(scene, &mut new, &training_progress);
@@ -362,8 +500,9 @@ pub fn render(
     let guiding = guide.map(|field| Guiding {
         field,
         record: false,
-        guide_probability: guiding.guide_probability,
+        guide_probability: schedule.guide_probability,
     });
+    let continuation_field = field.as_ref().filter(|_| schedule.mode.is_some());
     let mut image = PassImage::new(width, height);
     loop {
         let done = match (budget.time, budget.spp) {
@@ -375,7 +514,20 @@ pub fn render(
             break;
         }
         let pass = image.spp;
-        render_pass_image(scene, guiding, &mut image, 1, seed, pass);
+        // The image's estimates so far, for this pass's roulette and splitting.
+        let estimates = schedule.mode.and_then(|mode| {
+            let all: Vec<&PassImage> = passes.iter().chain([&image]).collect();
+            splitting(&all, mode)
+        });
+        let continuations =
+            continuation_field.map(|f| continuations_of(f, estimates.as_ref(), false));
+        render_pass_image(
+            scene,
+            guiding,
+            continuations.as_ref(),
+            &mut image,
+            (1, seed, pass),
+        );
         progress("rendering", fraction(image.spp), image.spp);
     }
     let spp = image.spp;
@@ -384,6 +536,11 @@ pub fn render(
     let combined = combine(&passes).unwrap_or_else(|| final_image.clone());
     Ok(Outcome {
         method,
+        rrs: if schedule.mode.is_some() {
+            guiding_rrs
+        } else {
+            Rrs::Classic
+        },
         image: final_image,
         combined,
         spp,
@@ -409,12 +566,16 @@ struct Schedule {
     size: (usize, usize),
     seed: u64,
     guide_probability: Option<f32>,
+    /// Roulette and splitting (`None`: classic).
+    mode: Option<SplittingMode>,
 }
 
 impl Schedule {
     /// Trains `field` in passes of 1, 2, 4, … spp; returns the training spp, time and images.
     /// With a time budget, passes continue while the next one — twice the samples, so about
-    /// twice the time — still fits in the training share (at most 2¹⁶ − 1 spp).
+    /// twice the time — still fits in the training share; then a last, smaller pass fills what
+    /// is left of the share, if at least half the previous pass's samples fit (at most
+    /// 2¹⁶ − 1 spp in all).
     fn train(
         &self,
         scene: &Scene,
@@ -427,26 +588,42 @@ impl Schedule {
             self.budget.training_iterations
         };
         let (mut spp_total, mut last, mut images) = (0, Duration::ZERO, Vec::new());
+        let mut last_spp: u32 = 0;
         for iteration in 0..passes {
-            if let Some(t) = self.budget.time
-                && self.start.elapsed() + 2 * last > t.mul_f32(self.budget.training_share)
-            {
-                break;
+            let mut spp = 1 << iteration;
+            if let Some(t) = self.budget.time {
+                let share = t.mul_f32(self.budget.training_share);
+                if self.start.elapsed() + 2 * last > share {
+                    // The doubled pass does not fit: a last one of the samples that do, at the
+                    // last pass's time per sample, if that is at least half the last pass (a
+                    // pass's time per sample changes as roulette and splitting learn).
+                    let left = share.saturating_sub(self.start.elapsed()).as_secs_f64();
+                    let per_spp = last.as_secs_f64() / f64::from(last_spp.max(1));
+                    let fits = (left / per_spp.max(1e-9)).floor().min(f64::from(spp)) as u32;
+                    if fits < last_spp.div_ceil(2).max(1) {
+                        break;
+                    }
+                    spp = fits;
+                }
             }
             let began = Instant::now();
-            let spp = 1 << iteration;
-            images.push(training_pass(
-                scene,
-                field,
-                self.size,
+            let pass = TrainingPass {
+                size: self.size,
                 spp,
-                self.seed,
+                seed: self.seed,
                 iteration,
-                self.guide_probability,
-            ));
+                guide_probability: self.guide_probability,
+            };
+            let rrs = self.mode.map(|mode| (mode, images.as_slice()));
+            let image = training_pass_with(scene, field, &pass, rrs);
+            images.push(image);
             spp_total += spp;
             last = began.elapsed();
+            last_spp = spp;
             progress(iteration + 1, spp_total);
+            if spp < 1 << iteration {
+                break;
+            }
         }
         Trained {
             spp: spp_total,

@@ -2,14 +2,18 @@
 //! is `emission / (1 − albedo)` everywhere, so every pixel's expectation is known exactly. A
 //! render must converge to it with and without guiding — unbiasedness through the whole wiring
 //! (mixture sampling with the surface-aware guide, its pdf in the estimator and in MIS,
-//! next-event estimation or none, Russian roulette, recording and refining). A glass sphere in
+//! next-event estimation or none, Russian roulette, roulette and splitting by the field's
+//! continuation estimates, recording and refining). A glass sphere in
 //! the furnace leaves its radiance as it was: energy is conserved through the dielectric, and
 //! paths through it are weighed right.
 
-use sdguide::{GuidingConfig, GuidingField, LeafRule};
+use sdguide::{GuidingConfig, GuidingField, LeafRule, Splitting, SplittingMode};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::{Guide, Guiding};
-use sdguide_render::render::{field_bounds, render_pass, training_pass};
+use sdguide_render::integrator::{Continuations, Guide, Guiding};
+use sdguide_render::passes::{PassImage, splitting};
+use sdguide_render::render::{
+    TrainingPass, field_bounds, render_pass, render_pass_image, training_pass, training_pass_with,
+};
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
 
@@ -197,4 +201,81 @@ fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
             &format!("Open PGL, cosine product {cosine_product}"),
         );
     }
+}
+
+/// Roulette and splitting by the field's continuation estimates keep the furnace unbiased,
+/// guided and not: with the policy the training passes give, forced to split wherever the
+/// demo lets a vertex split (to the ray bound of a camera sample), and forced to kill at a
+/// survival floor.
+#[test]
+fn furnace_with_roulette_and_splitting_converges() {
+    let scene = furnace(ALBEDO, EMISSION);
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let mode = SplittingMode::RouletteAndSplitting;
+    let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
+    let mut passes = Vec::new();
+    for iteration in 0..5 {
+        let pass = TrainingPass {
+            size: SIZE,
+            spp: 1 << iteration,
+            seed: 3,
+            iteration,
+            guide_probability: None,
+        };
+        let image = training_pass_with(&scene, &mut field, &pass, Some((mode, &passes)));
+        passes.push(image);
+    }
+    let estimated = field
+        .cells()
+        .filter(|c| field.continuation(c.bounds.center()).count >= 16)
+        .count();
+    assert!(
+        estimated > 1,
+        "{estimated} cells with continuation estimates"
+    );
+    let refs: Vec<&PassImage> = passes.iter().collect();
+    let estimates = splitting(&refs, mode).expect("passes of 4 spp and more");
+    let forced = |variance, floor| {
+        Splitting::new(mode, variance, 10.0)
+            .with_bounds(floor, 3.0)
+            .unwrap()
+    };
+    let mut rays = Vec::new();
+    for (name, policy, guide_probability) in [
+        ("the image's policy", estimates.splitting, None),
+        (
+            "the image's policy, unguided",
+            estimates.splitting,
+            Some(0.0),
+        ),
+        ("splitting", forced(1e-9, 0.05), None),
+        ("killing", forced(1e9, 0.5), None),
+    ] {
+        let continuations = Continuations {
+            field: &field,
+            splitting: Some(policy),
+            pixels: &estimates.pixels,
+            record: false,
+        };
+        let guiding = Guiding {
+            field: Guide::Sdguide(&field),
+            record: false,
+            guide_probability,
+        };
+        let mut image = PassImage::new(SIZE.0, SIZE.1);
+        render_pass_image(
+            &scene,
+            Some(guiding),
+            Some(&continuations),
+            &mut image,
+            (SPP, 7, 0),
+        );
+        assert_converges(&image.mean(), name);
+        rays.push(image.rays);
+    }
+    // The forced policies did what they force.
+    assert!(rays[2] > 3.0 * rays[0] && rays[3] < rays[0], "{rays:?}");
 }

@@ -6,7 +6,7 @@
 use glam::Vec3;
 use sdguide::GuidingConfig;
 use sdguide_render::passes::{PassImage, combine};
-use sdguide_render::render::{Budget, Method, Training, render};
+use sdguide_render::render::{Budget, Method, Rrs, Training, render};
 use sdguide_render::scenes::furnace;
 
 /// A one-pixel pass whose samples are the grey values `values`.
@@ -41,18 +41,30 @@ fn a_pass_variance_is_its_pixels_sample_variance_over_n() {
 
 #[test]
 fn passes_are_weighed_by_their_inverse_variance() {
-    // Means 2 (variance 1) and 5 (variance 4): weights 1 and 1/4, so (2 + 5/4) / (5/4) = 2.6.
+    // The last pass: mean 2, variance 1 (its own estimate). An earlier one: mean 5, variance
+    // 4 by its own samples, but 3² − 1 = 8 by its distance from the last, which counts.
+    // Weights 1/8 and 1: (5/8 + 2) / (9/8) = 7/3.
     let low = pass_of(&[1.0, 3.0]);
     let high = pass_of(&[3.0, 7.0]);
     assert!((high.variance().unwrap() - 4.0).abs() < 1e-5);
-    let combined = combine(&[low.clone(), high]).unwrap();
+    let combined = combine(&[high.clone(), low.clone()]).unwrap();
     assert!(
-        (combined.pixels[0].x - 2.6).abs() < 1e-5,
+        (combined.pixels[0].x - 7.0 / 3.0).abs() < 1e-5,
         "{}",
         combined.pixels[0]
     );
+    // An earlier pass close to the last keeps its own estimate: mean 2.5, variance 1 by its
+    // samples (distance 0.25 − 1 < 1): equal weights, (2.5 + 2) / 2.
+    let near = pass_of(&[1.5, 3.5]);
+    let combined = combine(&[near, low.clone()]).unwrap();
+    assert!((combined.pixels[0].x - 2.25).abs() < 1e-5);
+    // The last pass alone, by its own estimate, whatever the earlier ones.
+    let combined = combine(&[low.clone(), high]).unwrap();
+    // Last: mean 5, variance 4; earlier: mean 2, own variance 1, distance 9 − 4 = 5.
+    // Weights 1/5 and 1/4: (2/5 + 5/4) / (9/20) = 11/3.
+    assert!((combined.pixels[0].x - 11.0 / 3.0).abs() < 1e-5);
     // A pass without an estimate, or with a zero one, is left out; none left, no image.
-    let combined = combine(&[low, pass_of(&[100.0]), pass_of(&[9.0, 9.0])]).unwrap();
+    let combined = combine(&[pass_of(&[100.0]), low, pass_of(&[9.0, 9.0])]).unwrap();
     assert!((combined.pixels[0].x - 2.0).abs() < 1e-6);
     assert!(combine(&[pass_of(&[1.0])]).is_none());
     assert!(combine(&[]).is_none());
@@ -76,6 +88,7 @@ fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
         config: &config,
         cache: None,
         guide_probability: None,
+        rrs: Rrs::Classic,
     };
     let outcome = render(
         &scene,

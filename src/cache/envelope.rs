@@ -39,6 +39,7 @@ pub(super) struct Sections<'a> {
     pub(super) spatial: &'a [u8],
     pub(super) directional: &'a [u8],
     pub(super) selection: Option<&'a [u8]>,
+    pub(super) continuations: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
 }
 
@@ -105,7 +106,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         section: "sections",
     };
     let (mut meta, mut spatial, mut directional) = (None, None, None);
-    let (mut selection, mut quadrants) = (None, None);
+    let (mut selection, mut quadrants, mut continuations) = (None, None, None);
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -126,6 +127,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_DIRECTIONAL => &mut directional,
             SECTION_SELECTION => &mut selection,
             SECTION_QUADRANTS => &mut quadrants,
+            SECTION_CONTINUATIONS => &mut continuations,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -148,5 +150,6 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         directional: directional.ok_or_else(|| missing("directional"))?,
         selection,
         quadrants,
+        continuations,
     })
 }

@@ -1,5 +1,6 @@
-//! The optional `SELECTION` and `QUADRANTS` sections: each spatial leaf's guide-probability
-//! sums and each directional leaf's quadrant sums. Files without them load (older minors).
+//! The optional `SELECTION`, `QUADRANTS` and `CONTINUATIONS` sections: each spatial leaf's
+//! guide-probability sums, each directional leaf's quadrant sums, and each spatial leaf's
+//! continuation moments. Files without them load (older minors).
 
 use super::*;
 
@@ -109,6 +110,55 @@ pub(super) fn decode_quadrants(
             }
             *slot = AtomicQuadrants::from_quadrants(q);
         }
+    }
+    Ok(())
+}
+
+pub(super) fn encode_continuations(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + CONTINUATIONS_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        for e in [t.continuations.estimate, t.continuations.recorded()] {
+            out.f64(e.sum);
+            out.f64(e.sum_sq);
+            out.f64(e.cost);
+            out.u64(e.count);
+        }
+    }
+    out.0
+}
+
+/// Reads the optional continuations section into `trees` (already decoded).
+pub(super) fn decode_continuations(
+    bytes: &[u8],
+    trees: &mut [DirectionalTree],
+) -> Result<(), CacheError> {
+    let section = "continuations";
+    let mut r = In { bytes, section };
+    let n = r.count(CONTINUATIONS_LEN, "continuation estimates")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            section,
+            format!("{n} continuation estimates for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let mut read = || -> Result<ContinuationEstimate, CacheError> {
+            Ok(ContinuationEstimate {
+                sum: r.f64()?,
+                sum_sq: r.f64()?,
+                cost: r.f64()?,
+                count: r.u64()?,
+            })
+        };
+        let (estimate, recorded) = (read()?, read()?);
+        if !(estimate.is_valid() && recorded.is_valid()) {
+            return Err(corrupt(
+                section,
+                format!("tree {i}: estimate {estimate:?}, recorded {recorded:?}"),
+            ));
+        }
+        t.continuations = ContinuationStats::from_parts(estimate, recorded);
     }
     Ok(())
 }

@@ -18,6 +18,7 @@ use crate::guide_probability::{
 use crate::moments::{AtomicMoments, AtomicQuadrants};
 use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
+use crate::splitting::{ContinuationEstimate, ContinuationStats};
 use crate::stats::RejectCounters;
 use crate::{
     Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Refinement,
@@ -38,7 +39,10 @@ mod validate;
 
 use bytes::{In, Out};
 use envelope::{read_envelope, write_envelope};
-use leaf_sums::{decode_quadrants, decode_selection, encode_quadrants, encode_selection};
+use leaf_sums::{
+    decode_continuations, decode_quadrants, decode_selection, encode_continuations,
+    encode_quadrants, encode_selection,
+};
 use meta::{decode_meta, encode_meta};
 use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
 use validate::{check_permutation, check_tree, node_count};
@@ -51,9 +55,10 @@ pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
 pub const FORMAT_MAJOR: u16 = 2;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
-/// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]); an older
-/// reader refuses files that use them.
-pub const FORMAT_MINOR: u16 = 2;
+/// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]) — an older
+/// reader refuses files that use them — and 2.3 the optional `CONTINUATIONS` section (the
+/// moments [`splitting`](crate::splitting) learns from), which an older reader skips.
+pub const FORMAT_MINOR: u16 = 3;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -68,6 +73,10 @@ const SELECTION_LEN: usize = 32;
 /// reader without it starts the iteration's quadrant sums at zero).
 const SECTION_QUADRANTS: u32 = 5;
 const QUADRANTS_LEN: usize = 64;
+/// 2.3: each spatial leaf's continuation estimate and recorded sums, for roulette and splitting
+/// (optional: a reader without it starts with no estimate).
+const SECTION_CONTINUATIONS: u32 = 6;
+const CONTINUATIONS_LEN: usize = 64;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -208,6 +217,7 @@ impl GuidingField {
             ),
             (SECTION_SELECTION, 0, encode_selection(&self.trees)),
             (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
+            (SECTION_CONTINUATIONS, 0, encode_continuations(&self.trees)),
         ];
         write_envelope(&sections)
     }
@@ -242,6 +252,9 @@ impl GuidingField {
         }
         if let Some(bytes) = sections.quadrants {
             decode_quadrants(bytes, &mut field.trees)?;
+        }
+        if let Some(bytes) = sections.continuations {
+            decode_continuations(bytes, &mut field.trees)?;
         }
         field.prepare_recording();
         Ok(field)

@@ -201,5 +201,6 @@ pub(super) fn decode_tree(
             pending: Box::default(),
         },
         selection: GuideSelection::default(),
+        continuations: ContinuationStats::default(),
     })
 }

@@ -35,6 +35,7 @@ pub(crate) use sampling::{SamplingNode, SamplingTree};
 
 use crate::guide_probability::GuideSelection;
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
+use crate::splitting::ContinuationStats;
 use glam::Vec2;
 #[cfg(test)]
 use recording::FREE;
@@ -177,6 +178,8 @@ pub(crate) struct DirectionalTree {
     pub(crate) recording: RecordingTree,
     /// The spatial leaf's learned guide-vs-BSDF selection probability.
     pub(crate) selection: GuideSelection,
+    /// The spatial leaf's continuation moments, for roulette and splitting.
+    pub(crate) continuations: ContinuationStats,
 }
 
 impl Default for DirectionalTree {
@@ -185,6 +188,7 @@ impl Default for DirectionalTree {
             sampling: SamplingTree::uniform(),
             recording: RecordingTree::root(),
             selection: GuideSelection::default(),
+            continuations: ContinuationStats::default(),
         }
     }
 }

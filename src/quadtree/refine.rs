@@ -164,6 +164,7 @@ impl DirectionalTree {
     /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
     pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
         self.selection.step();
+        self.continuations.step();
         self.recording.flush_pending_mut();
         let samples = self.recording.count();
         if samples == 0 {
