@@ -37,7 +37,9 @@ use crate::scene::Scene;
 use glam::Vec2;
 use glam::Vec3;
 use sdguide::splitting::continuations;
-use sdguide::{Continuation, GuidingField, Sample, Splitting, SurfaceDistribution};
+use sdguide::{
+    Continuation, ContinuationEstimate, GuidingField, Sample, Splitting, SurfaceDistribution,
+};
 
 /// Longest path, in scattering events.
 pub const MAX_DEPTH: usize = 10;
@@ -150,6 +152,15 @@ impl GuideView<'_> {
             GuideView::Sdguide(d) => d.pdf(direction),
             #[cfg(feature = "openpgl")]
             GuideView::OpenPgl(d) => d.pdf(direction),
+        }
+    }
+
+    /// The continuation estimate of the guide's cell (sdguide's guide only).
+    fn continuation(&self) -> Option<ContinuationEstimate> {
+        match self {
+            GuideView::Sdguide(d) => Some(d.continuation()),
+            #[cfg(feature = "openpgl")]
+            GuideView::OpenPgl(_) => None,
         }
     }
 
@@ -368,7 +379,7 @@ impl Path<'_, '_> {
             self.rays += 1;
             let Some(hit) = scene.intersect(&ray) else {
                 return Traced {
-                    radiance: Vec3::ZERO,
+                    radiance: l,
                     distance: first_hit.unwrap_or(f32::INFINITY),
                 };
             };
@@ -450,7 +461,16 @@ impl Path<'_, '_> {
             // How many continuations, each weighed by 1/q: the efficiency-aware factor where
             // the cell has an estimate, else one, under classic roulette.
             let factor = self.policy.and_then(|(splitting, pixel)| {
-                let estimate = self.continuations?.field.continuation(hit.position);
+                let field = self.continuations?.field;
+                // The guide's view of the same field already holds its cell's estimate: no
+                // second lookup.
+                let same = matches!(guide, Some(Guide::Sdguide(f)) if std::ptr::eq(f, field));
+                let estimate = sampler
+                    .guide
+                    .as_ref()
+                    .filter(|_| same)
+                    .and_then(GuideView::continuation)
+                    .unwrap_or_else(|| field.continuation(hit.position));
                 let q = splitting.factor(&estimate, luminance(beta), pixel)?;
                 // The camera vertex only plays roulette: there the rest of the image, which the
                 // factor takes to be the whole image, is mostly this vertex's own continuations,

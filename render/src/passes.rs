@@ -213,22 +213,14 @@ pub fn splitting(passes: &[&PassImage], mode: SplittingMode) -> Option<PixelEsti
         .iter()
         .map(|&i| (i * i + RELATIVE_EPSILON).sqrt())
         .collect();
+    // The mean over pixels of each pixel's per-sample variance over P²: the mean's variance
+    // times the samples.
     let n = f64::from(latest.spp);
-    let relative: f64 = latest
-        .sum
-        .pixels
-        .iter()
-        .zip(&latest.squares)
-        .zip(&pixels)
-        .map(|((s, &q), &p)| {
-            let s = f64::from(luminance(*s));
-            let per_sample = ((q - s * s / n) / (n - 1.0)).max(0.0);
-            per_sample / f64::from(p * p)
-        })
-        .sum();
+    let inverse: Vec<f64> = pixels.iter().map(|&p| 1.0 / f64::from(p * p)).collect();
+    let relative = latest.weighted_variance(Some(&inverse))? * n;
     let count = pixels.len().max(1) as f64;
     let cost = latest.rays / (n * count);
-    let policy = Splitting::new(mode, relative / count, cost)
+    let policy = Splitting::new(mode, relative, cost)
         .with_bounds(Splitting::DEFAULT_MIN_SURVIVAL, MAX_SPLITS)
         .ok()?;
     Some(PixelEstimates {
