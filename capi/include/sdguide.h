@@ -323,7 +323,11 @@ typedef struct {
    */
   uint64_t samples_recorded_total;
   /*
-   Samples rejected over the field's life: non-finite position, out of bounds, bad
+   Continuations recorded in the current iteration (`sdg_field_record_continuation`).
+   */
+  uint64_t continuations_recorded;
+  /*
+   Samples and continuations rejected over the field's life: non-finite position, out of bounds, bad
    direction, bad value, bad pdf.
    */
   uint64_t rejected[5];

@@ -231,7 +231,9 @@ pub struct sdg_stats {
     pub samples_recorded: u64,
     /// Samples recorded over the field's life.
     pub samples_recorded_total: u64,
-    /// Samples rejected over the field's life: non-finite position, out of bounds, bad
+    /// Continuations recorded in the current iteration (`sdg_field_record_continuation`).
+    pub continuations_recorded: u64,
+    /// Samples and continuations rejected over the field's life: non-finite position, out of bounds, bad
     /// direction, bad value, bad pdf.
     pub rejected: [u64; 5],
     /// Spatial splits refused by the caps.
@@ -911,6 +913,7 @@ pub unsafe extern "C" fn sdg_field_stats(
             directional_leaves: s.directional_leaves,
             samples_recorded: s.samples_recorded,
             samples_recorded_total: s.samples_recorded_total,
+            continuations_recorded: s.continuations_recorded,
             rejected: [
                 r.non_finite_position,
                 r.out_of_bounds,

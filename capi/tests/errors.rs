@@ -586,6 +586,11 @@ fn continuations_are_recorded_and_give_a_splitting_factor() {
             sdg_field_record_continuation(f, null()),
             sdg_status::NullPointer
         );
+        // The 32 accepted continuations are counted, and the rejected one as rejected.
+        let mut stats = sdg_stats::default();
+        assert_eq!(sdg_field_stats(f, &mut stats), sdg_status::Ok);
+        assert_eq!(stats.continuations_recorded, 32);
+        assert_eq!(stats.rejected.iter().sum::<u64>(), 1);
         assert_eq!(sdg_field_refine(f), sdg_status::Ok);
         // Mean 2, second moment 4, cost 2.5: (T/P)·sqrt(M₂·C̄/(V̄·c)) = 0.05·2·4 = 0.4.
         assert_eq!(

@@ -1,7 +1,7 @@
 //! Combining a render's passes by inverse variance: each pass's variance estimate is the one
 //! its samples give, the combination weighs passes by its inverse, and a guided render's
 //! combined image converges to the furnace's analytic radiance (training passes are unbiased
-//! estimates, and so is their combination).
+//! estimates, and so is their combination); and the training schedule a render follows.
 
 use glam::Vec3;
 use sdguide::GuidingConfig;
@@ -120,4 +120,39 @@ fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
         (mean - expected).abs() < 4.0 * error,
         "{mean} vs {expected} ± {error}"
     );
+}
+
+#[test]
+fn the_first_splitting_pass_repeats_the_pass_before_it() {
+    // Without a time budget, five training passes: 1, 2, 4, 8, 16 spp with classic roulette;
+    // with splitting the policy is set by the 4-spp pass, so the first pass that splits takes
+    // 4 spp again and the doubling resumes after it: 1, 2, 4, 4, 8.
+    let scene = furnace(0.3, 1.0);
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let budget = Budget {
+        time: None,
+        spp: Some(4),
+        training_share: 0.3,
+        training_iterations: 5,
+    };
+    let trained = |method: Method, rrs: Rrs| {
+        let training = Training {
+            config: &config,
+            cache: None,
+            guide_probability: None,
+            rrs,
+        };
+        render(&scene, method, (16, 12), budget, 3, training, &|_, _, _| {})
+            .unwrap()
+            .training_spp
+    };
+    let guided = Method::Guided(sdguide::LeafRule::L2);
+    assert_eq!(trained(guided, Rrs::Classic), 31);
+    assert_eq!(trained(guided, Rrs::Ears), 19);
+    assert_eq!(trained(Method::Unguided, Rrs::Ears), 19);
+    // Unguided with classic roulette does not train.
+    assert_eq!(trained(Method::Unguided, Rrs::Classic), 0);
 }
