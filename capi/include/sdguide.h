@@ -327,8 +327,8 @@ typedef struct {
    */
   uint64_t continuations_recorded;
   /*
-   Samples and continuations rejected over the field's life: non-finite position, out of bounds, bad
-   direction, bad value, bad pdf.
+   Samples and continuations rejected over the field's life: non-finite position, out of
+   bounds, bad direction, bad value, bad pdf.
    */
   uint64_t rejected[5];
   /*

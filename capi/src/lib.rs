@@ -233,8 +233,8 @@ pub struct sdg_stats {
     pub samples_recorded_total: u64,
     /// Continuations recorded in the current iteration (`sdg_field_record_continuation`).
     pub continuations_recorded: u64,
-    /// Samples and continuations rejected over the field's life: non-finite position, out of bounds, bad
-    /// direction, bad value, bad pdf.
+    /// Samples and continuations rejected over the field's life: non-finite position, out of
+    /// bounds, bad direction, bad value, bad pdf.
     pub rejected: [u64; 5],
     /// Spatial splits refused by the caps.
     pub spatial_splits_refused: u64,

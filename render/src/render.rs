@@ -605,9 +605,10 @@ impl Schedule {
             let mut filler = false;
             if let Some(t) = self.budget.time {
                 let share = t.mul_f32(self.budget.training_share);
-                let expected = if first_split { last } else { 2 * last };
+                // The next pass, at the last one's time per sample.
+                let expected = last.mul_f64(f64::from(spp) / f64::from(last_spp.max(1)));
                 if self.start.elapsed() + expected > share {
-                    // The doubled pass does not fit: a last one of the samples that do, at the
+                    // The next pass does not fit: a last one of the samples that do, at the
                     // last pass's time per sample, if that is at least half the last pass (a
                     // pass's time per sample changes as roulette and splitting learn).
                     let left = share.saturating_sub(self.start.elapsed()).as_secs_f64();

@@ -6,7 +6,7 @@
 use glam::Vec3;
 use sdguide::GuidingConfig;
 use sdguide_render::passes::{PassImage, combine};
-use sdguide_render::render::{Budget, Method, Rrs, Training, render};
+use sdguide_render::render::{Budget, Method, Outcome, Rrs, Training, render};
 use sdguide_render::scenes::furnace;
 
 /// A one-pixel pass whose samples are the grey values `values`.
@@ -70,9 +70,12 @@ fn passes_are_weighed_by_their_inverse_variance() {
     assert!(combine(&[]).is_none());
 }
 
-#[test]
-fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
-    const ALBEDO: f32 = 0.3;
+/// The furnace's albedo.
+const ALBEDO: f32 = 0.3;
+
+/// Renders the furnace (albedo [`ALBEDO`]) with five training passes and `spp` final samples, at no
+/// time budget, with `method` and `rrs`.
+fn furnace_render(method: Method, rrs: Rrs, spp: u32, size: (usize, usize), seed: u64) -> Outcome {
     let scene = furnace(ALBEDO, 1.0);
     let config = GuidingConfig {
         spatial_threshold: 1000.0,
@@ -80,7 +83,7 @@ fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
     };
     let budget = Budget {
         time: None,
-        spp: Some(16),
+        spp: Some(spp),
         training_share: 0.3,
         training_iterations: 5,
     };
@@ -88,18 +91,15 @@ fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
         config: &config,
         cache: None,
         guide_probability: None,
-        rrs: Rrs::Classic,
+        rrs,
     };
-    let outcome = render(
-        &scene,
-        Method::Guided(sdguide::LeafRule::L2),
-        (40, 30),
-        budget,
-        5,
-        training,
-        &|_, _, _| {},
-    )
-    .unwrap();
+    render(&scene, method, size, budget, seed, training, &|_, _, _| {}).unwrap()
+}
+
+#[test]
+fn a_guided_render_with_its_training_passes_converges_in_the_furnace() {
+    let guided = Method::Guided(sdguide::LeafRule::L2);
+    let outcome = furnace_render(guided, Rrs::Classic, 16, (40, 30), 5);
     assert_eq!((outcome.spp, outcome.training_spp), (16, 31));
     // The combined image holds more samples than the final one: a smaller pixel spread.
     let spread = |pixels: &[Vec3]| {
@@ -127,28 +127,8 @@ fn the_first_splitting_pass_repeats_the_pass_before_it() {
     // Without a time budget, five training passes: 1, 2, 4, 8, 16 spp with classic roulette;
     // with splitting the policy is set by the 4-spp pass, so the first pass that splits takes
     // 4 spp again and the doubling resumes after it: 1, 2, 4, 4, 8.
-    let scene = furnace(0.3, 1.0);
-    let config = GuidingConfig {
-        spatial_threshold: 1000.0,
-        ..GuidingConfig::default()
-    };
-    let budget = Budget {
-        time: None,
-        spp: Some(4),
-        training_share: 0.3,
-        training_iterations: 5,
-    };
-    let trained = |method: Method, rrs: Rrs| {
-        let training = Training {
-            config: &config,
-            cache: None,
-            guide_probability: None,
-            rrs,
-        };
-        render(&scene, method, (16, 12), budget, 3, training, &|_, _, _| {})
-            .unwrap()
-            .training_spp
-    };
+    let trained =
+        |method: Method, rrs: Rrs| furnace_render(method, rrs, 4, (16, 12), 3).training_spp;
     let guided = Method::Guided(sdguide::LeafRule::L2);
     assert_eq!(trained(guided, Rrs::Classic), 31);
     assert_eq!(trained(guided, Rrs::Ears), 19);
