@@ -516,9 +516,9 @@ pub fn render(
         }
         let pass = image.spp;
         // The image's estimates so far, for this pass's roulette and splitting, renewed each
-        // time the final image's samples double: they combine every pass's image, which at one
-        // sample per pass would take a sixth of an unguided render's time on one thread
-        // (`glossy-box`: 2.0 s of its 14 s final render), and later samples move them less.
+        // time the final image's samples double: they combine every pass's image on one thread,
+        // which after every 1-spp pass took 2.0 s of an unguided `glossy-box` render's 14 s
+        // final render, and later samples move them less.
         if pass == 0 || pass.is_power_of_two() {
             estimates = schedule.mode.and_then(|mode| {
                 let all: Vec<&PassImage> = passes.iter().chain([&image]).collect();
