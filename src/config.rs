@@ -1,5 +1,8 @@
 //! The field's configuration: every knob, its default, and the checks that reject absurd values.
 
+use crate::guide_probability::{
+    DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY,
+};
 use crate::{DirectionalFilter, LeafRule, Refinement, SpatialFilter};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -74,6 +77,12 @@ pub struct GuidingConfig {
     /// How a sample is spread over directional leaves (default [`DirectionalFilter::Box`], chosen
     /// with the quality harness: lower variance on every light field, most on noisy ones).
     pub directional_filter: DirectionalFilter,
+    /// The largest guide probability `a` a spatial leaf learns (default 0.75; see
+    /// [`guide_probability`](crate::guide_probability)). The BSDF keeps at least `1 − a` of
+    /// the samples, which bounds a vertex's second moment by `1/(1 − a)` times BSDF sampling's
+    /// alone, whatever the guide learned wrong. Must be in
+    /// `[0.5, `[`MAX_GUIDE_PROBABILITY`](crate::guide_probability::MAX_GUIDE_PROBABILITY)`]`.
+    pub max_guide_probability: f32,
 }
 
 impl Default for GuidingConfig {
@@ -92,6 +101,7 @@ impl Default for GuidingConfig {
             prior_samples: 0.5,
             spatial_filter: SpatialFilter::Nearest,
             directional_filter: DirectionalFilter::Box,
+            max_guide_probability: DEFAULT_MAX_GUIDE_PROBABILITY,
         }
     }
 }
@@ -167,6 +177,13 @@ impl GuidingConfig {
             "prior_samples",
             self.prior_samples.to_string(),
             "a finite number >= 0",
+        )?;
+        check(
+            (INITIAL_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY)
+                .contains(&self.max_guide_probability),
+            "max_guide_probability",
+            self.max_guide_probability.to_string(),
+            "a number in [0.5, 0.95]",
         )
     }
 }

@@ -70,9 +70,10 @@ impl<'a> DirectionalDistribution<'a> {
     }
 
     /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
-    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and 0.95 (see
-    /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from samples recorded
-    /// with [`Sample::with_mixture`](crate::Sample::with_mixture).
+    /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and the configuration's
+    /// [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) (see
+    /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from
+    /// samples recorded with [`Sample::with_mixture`](crate::Sample::with_mixture).
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.guide_probability

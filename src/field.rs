@@ -290,6 +290,7 @@ impl GuidingField {
             max_depth: c.max_directional_depth,
             max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
             prior_samples: f64::from(c.prior_samples),
+            max_guide_probability: c.max_guide_probability,
             deferred,
         };
         let outcomes: Vec<RefineOutcome> = self

@@ -18,19 +18,33 @@
 //!
 //! Each spatial leaf accumulates the two sums while recording (lock-free, like the moments) and
 //! [`refine`](crate::GuidingField::refine) takes the step, clamped between
-//! [`MIN_GUIDE_PROBABILITY`] and [`MAX_GUIDE_PROBABILITY`] (0.05 and 0.95): the defensive floor that keeps
-//! the BSDF (which may be the only technique covering a direction the guide has not learned)
-//! and the guide always in play. A leaf with fewer than `MIN_SELECTION_SAMPLES` (32) mixture
-//! samples in an iteration keeps its probability; a new leaf starts at ½ (children after a
-//! spatial split start from their parent's).
+//! [`MIN_GUIDE_PROBABILITY`] (0.05) and the configuration's
+//! [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) (default
+//! [`DEFAULT_MAX_GUIDE_PROBABILITY`], 0.75; at most [`MAX_GUIDE_PROBABILITY`], 0.95), so that
+//! both techniques stay in play. The upper bound is the defensive one: the BSDF may be the only
+//! technique covering a direction the guide has not learned, and since `q_a ≥ (1 − a)·p_b`,
+//!
+//! ```text
+//!   M(a) ≤ M_bsdf / (1 − a),
+//! ```
+//!
+//! whatever the guide is. The estimates of `M'` and `M''` come from the same heavy-tailed
+//! samples: an iteration that missed the rare paths only the BSDF finds sees no reason to keep
+//! the BSDF and pushes `a` to its bound, where those paths then weigh `1/(1 − a)` times what they
+//! weigh without guiding — 20× at 0.95, 4× at 0.75. A leaf with fewer than
+//! `MIN_SELECTION_SAMPLES` (32) mixture samples in an iteration keeps its probability; a new
+//! leaf starts at ½ (children after a spatial split start from their parent's).
 
 use crate::moments::AtomicF64;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The smallest guide probability the selection learns.
 pub const MIN_GUIDE_PROBABILITY: f32 = 0.05;
-/// The largest guide probability the selection learns (the BSDF keeps at least 5%).
+/// The largest guide probability any configuration lets a leaf learn (the BSDF keeps at least
+/// 5%), and the largest a cache may hold.
 pub const MAX_GUIDE_PROBABILITY: f32 = 0.95;
+/// The default of [`GuidingConfig::max_guide_probability`](crate::GuidingConfig::max_guide_probability).
+pub const DEFAULT_MAX_GUIDE_PROBABILITY: f32 = 0.75;
 /// The guide probability of a leaf that has learned nothing yet.
 pub const INITIAL_GUIDE_PROBABILITY: f32 = 0.5;
 /// Mixture samples a leaf needs in an iteration before it takes a Newton step.
@@ -104,17 +118,19 @@ impl GuideSelection {
         self.count.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Ends an iteration: one clamped Newton step, `a ← a + gradient / (2·curvature)`, if the
-    /// leaf saw enough samples with a positive curvature; then the sums restart.
-    pub(crate) fn step(&mut self) {
+    /// Ends an iteration: one Newton step, `a ← a + gradient / (2·curvature)`, clamped to
+    /// `[MIN_GUIDE_PROBABILITY, max]`, if the leaf saw enough samples with a positive
+    /// curvature; then the sums restart.
+    pub(crate) fn step(&mut self, max: f32) {
         let s = self.sums();
         if s.count >= MIN_SELECTION_SAMPLES && s.curvature > 0.0 && s.curvature.is_finite() {
             let next = f64::from(self.probability) + s.gradient / (2.0 * s.curvature);
             if next.is_finite() {
-                self.probability =
-                    (next as f32).clamp(MIN_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY);
+                self.probability = (next as f32).clamp(MIN_GUIDE_PROBABILITY, max);
             }
         }
+        // A leaf that learned nothing still obeys the bound.
+        self.probability = self.probability.min(max);
         *self = Self::from_parts(self.probability, SelectionSums::default());
     }
 
@@ -155,7 +171,7 @@ mod tests {
                 };
                 sel.record(f, pb, pg, 1.0); // uniform over the domain: q0 = 1
             }
-            sel.step();
+            sel.step(MAX_GUIDE_PROBABILITY);
         }
         let expected = c1 / (c1 + c2);
         assert!(
@@ -173,21 +189,32 @@ mod tests {
             for _ in 0..100 {
                 sel.record(1.0, 0.0, 1.0, 1.0);
             }
-            sel.step();
+            sel.step(MAX_GUIDE_PROBABILITY);
         }
         assert_eq!(sel.probability, MAX_GUIDE_PROBABILITY);
+        // The same under the default bound, which a leaf holding more falls to even without
+        // samples.
+        let mut sel = GuideSelection::default();
+        for _ in 0..100 {
+            sel.record(1.0, 0.0, 1.0, 1.0);
+        }
+        sel.step(DEFAULT_MAX_GUIDE_PROBABILITY);
+        assert_eq!(sel.probability, DEFAULT_MAX_GUIDE_PROBABILITY);
+        let mut sel = GuideSelection::from_parts(0.9, SelectionSums::default());
+        sel.step(DEFAULT_MAX_GUIDE_PROBABILITY);
+        assert_eq!(sel.probability, DEFAULT_MAX_GUIDE_PROBABILITY);
         let mut sel = GuideSelection::default();
         for _ in 0..MIN_SELECTION_SAMPLES - 1 {
             sel.record(1.0, 0.0, 1.0, 1.0);
         }
-        sel.step();
+        sel.step(MAX_GUIDE_PROBABILITY);
         assert_eq!(sel.probability, INITIAL_GUIDE_PROBABILITY);
         // Huge values saturate instead of poisoning the sums.
         let mut sel = GuideSelection::default();
         for _ in 0..100 {
             sel.record(f32::MAX, 0.0, f32::MAX, f32::MIN_POSITIVE);
         }
-        sel.step();
+        sel.step(MAX_GUIDE_PROBABILITY);
         assert!(sel.probability.is_finite());
     }
 }

@@ -218,7 +218,7 @@ fn any_jitter_is_recorded_into_a_valid_cell() {
 #[test]
 fn absurd_configs_and_bounds_are_typed_errors() {
     let ok = GuidingConfig::default();
-    let cases: [(GuidingConfig, &str); 13] = [
+    let cases: [(GuidingConfig, &str); 16] = [
         (
             GuidingConfig {
                 spatial_threshold: NAN,
@@ -309,6 +309,27 @@ fn absurd_configs_and_bounds_are_typed_errors() {
                 ..ok.clone()
             },
             "prior_samples",
+        ),
+        (
+            GuidingConfig {
+                max_guide_probability: 0.4,
+                ..ok.clone()
+            },
+            "max_guide_probability",
+        ),
+        (
+            GuidingConfig {
+                max_guide_probability: 1.0,
+                ..ok.clone()
+            },
+            "max_guide_probability",
+        ),
+        (
+            GuidingConfig {
+                max_guide_probability: NAN,
+                ..ok.clone()
+            },
+            "max_guide_probability",
         ),
     ];
     let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);

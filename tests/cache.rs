@@ -2,6 +2,7 @@
 //! panic), keeps reading old files, and merges workers' statistics exactly.
 
 use glam::Vec3;
+use sdguide::guide_probability::MAX_GUIDE_PROBABILITY;
 use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
     MergeError, Refinement, Sample,
@@ -237,12 +238,13 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 3), &parts(&bytes)),
+        assemble((2, 4), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
     // The same sections as a 2.0 file (2.1 and 2.2 only added a filter value and a rule value
-    // this field does not use, 2.3 an optional section).
+    // this field does not use, 2.3 an optional section, 2.4 a field at the end of META, which
+    // a reader takes whatever the version says).
     let older = GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))).unwrap();
     assert_same(&field, &older);
     // A 2.2 file, without the continuations: it loads, with no continuation estimates and
@@ -274,7 +276,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 3)));
+            assert_eq!((found, supported), ((3, 0), (2, 4)));
         }
         other => panic!("{other:?}"),
     }
@@ -378,6 +380,12 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "meta",
         "gain_threshold",
     );
+    // META 2.4: a guide probability bound out of range.
+    corrupt(
+        forge(&bytes, 1, 192, 0.99f32.to_le_bytes()),
+        "meta",
+        "max_guide_probability",
+    );
     // QUADRANTS: a tree count that differs from the trees', a leaf count that differs from
     // the first tree's, a negative sum.
     corrupt(
@@ -463,7 +471,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 3)));
+            assert_eq!((found, supported), ((1, 0), (2, 4)));
         }
         other => panic!("{other:?}"),
     }
@@ -482,6 +490,25 @@ fn a_file_without_the_refinement_fields_keeps_refining_by_flux_share() {
     assert_eq!(
         loaded.config().gain_threshold,
         GuidingConfig::default().gain_threshold
+    );
+    assert_eq!(loaded.stats(), field.stats());
+}
+
+#[test]
+fn a_file_without_the_guide_probability_bound_keeps_the_widest() {
+    // META in its 2.3 layout: the field learned its guide probabilities up to 0.95, and goes on
+    // so; everything else loads as saved.
+    let field = small_field();
+    let mut old = parts(&field.to_bytes());
+    old[0].2.truncate(192);
+    let loaded = GuidingField::from_bytes(&assemble((2, 3), &old)).unwrap();
+    assert_eq!(loaded.config().max_guide_probability, MAX_GUIDE_PROBABILITY);
+    assert_eq!(
+        GuidingConfig {
+            max_guide_probability: field.config().max_guide_probability,
+            ..loaded.config().clone()
+        },
+        *field.config()
     );
     assert_eq!(loaded.stats(), field.stats());
 }

@@ -190,7 +190,7 @@ int main(int argc, char **argv) {
     CHECK(sdg_distribution_guide_probability(dist, &a) == SDG_STATUS_OK, "probability");
     sdg_distribution_destroy(dist);
     printf("learned guide probability at (0.4, 0.6, 0.5): %.3f\n", (double)a);
-    CHECK(a > 0.5f && a <= 0.95f, "guide probability %g", (double)a);
+    CHECK(a > 0.5f && a <= config.max_guide_probability, "guide probability %g", (double)a);
 
     /* Save to memory and to a file, reload both, and check the copies answer identically. */
     uint8_t *bytes = NULL;

@@ -179,6 +179,10 @@ typedef struct {
    `τ`: directional cells split while the split lowers `Σ sqrt(m)` by more than `τ` times it.
    */
   float gain_threshold;
+  /*
+   The largest guide probability a leaf learns, in [0.5, 0.95].
+   */
+  float max_guide_probability;
 } sdg_config;
 
 /*
@@ -499,8 +503,9 @@ sdg_status sdg_distribution_pdf(const sdg_distribution *dist, sdg_vec3 direction
 
 /*
  The learned probability of sampling the guide rather than the BSDF at the distribution's
- position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: in [0.05, 0.95], 0.5 until
- learned from samples recorded with mixture terms.
+ position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
+ configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
+ mixture terms.
 
  # Safety
  `dist` must be null or a live distribution; `probability` null or valid for writes.

@@ -149,6 +149,8 @@ pub struct sdg_config {
     pub refinement: u32,
     /// `τ`: directional cells split while the split lowers `Σ sqrt(m)` by more than `τ` times it.
     pub gain_threshold: f32,
+    /// The largest guide probability a leaf learns, in [0.5, 0.95].
+    pub max_guide_probability: f32,
 }
 
 /// One recorded path vertex (see the Rust `Sample`): at `position`, light of `value` arrived
@@ -408,6 +410,7 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
                 _ => return fail(sdg_status::Config, UNEXPRESSED),
             },
             gain_threshold: c.gain_threshold,
+            max_guide_probability: c.max_guide_probability,
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", config) }?;
@@ -480,6 +483,7 @@ pub unsafe extern "C" fn sdg_field_create(
                 other => return fail(sdg_status::Config, format!("unknown refinement {other}")),
             },
             gain_threshold: c.gain_threshold,
+            max_guide_probability: c.max_guide_probability,
         };
         if out.is_null() {
             return fail(sdg_status::NullPointer, "`out` is null");
@@ -839,8 +843,9 @@ pub unsafe extern "C" fn sdg_distribution_pdf(
 }
 
 /// The learned probability of sampling the guide rather than the BSDF at the distribution's
-/// position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: in [0.05, 0.95], 0.5 until
-/// learned from samples recorded with mixture terms.
+/// position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
+/// configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
+/// mixture terms.
 ///
 /// # Safety
 /// `dist` must be null or a live distribution; `probability` null or valid for writes.

@@ -36,7 +36,7 @@
 use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
 use glam::Vec3;
 use rayon::prelude::*;
-use sdguide::guide_probability::{MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
+use sdguide::guide_probability::MIN_GUIDE_PROBABILITY;
 use sdguide::sphere::{SPHERE_AREA, square_to_direction};
 use sdguide::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 
@@ -654,7 +654,7 @@ fn selection_over(
         let learned = f64::from(dist.guide_probability());
         let best = golden_section_min(
             f64::from(MIN_GUIDE_PROBABILITY),
-            f64::from(MAX_GUIDE_PROBABILITY),
+            f64::from(field.config().max_guide_probability),
             relvar,
         );
         sum.half += r.weight * relvar(0.5);

@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p sdguide-render -- [--scene door|…|all] [--seeds 1] [--time 40]
 //!     [--spp N] [--rule both] [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
-//!     [--training-share 0.3] [--guide-probability F] [--refinement gain|flux]
+//!     [--training-share 0.3] [--guide-probability F] [--max-guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
 //!     [--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)]
 //! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
@@ -29,7 +29,8 @@ const ALL_SCENES: [&str; 5] = ["door", "glossy-box", "uplight", "covered", "caus
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caustic|furnace|all] \
 [--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] \
 [--out DIR] [--threads N] [--seed N] [--cache FILE] \
-[--width N] [--height N] [--training-share F] [--guide-probability F] [--refinement gain|flux] \
+[--width N] [--height N] [--training-share F] [--guide-probability F] [--max-guide-probability F] \
+[--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
 [--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)] [--reference] \
 [--probe CACHE]";
@@ -49,6 +50,8 @@ struct Args {
     height: usize,
     make_reference: bool,
     guide_probability: Option<f32>,
+    /// The largest guide probability the field learns.
+    max_guide_probability: f32,
     refinement: Refinement,
     directional_filter: DirectionalFilter,
     spatial_threshold: f32,
@@ -82,6 +85,7 @@ fn parse() -> Result<Args, String> {
         height: 240,
         make_reference: false,
         guide_probability: None,
+        max_guide_probability: GuidingConfig::default().max_guide_probability,
         refinement: Refinement::default(),
         directional_filter: DirectionalFilter::default(),
         spatial_threshold: GuidingConfig::default().spatial_threshold,
@@ -196,6 +200,7 @@ fn parse() -> Result<Args, String> {
                 }
                 a.guide_probability = Some(p);
             }
+            "--max-guide-probability" => a.max_guide_probability = number(&flag, &value)?,
             "--training-share" => {
                 let share: f32 = number(&flag, &value)?;
                 if !(0.0..1.0).contains(&share) {
@@ -249,6 +254,7 @@ fn run_method(
                 refinement: args.refinement,
                 directional_filter: args.directional_filter,
                 spatial_threshold: args.spatial_threshold,
+                max_guide_probability: args.max_guide_probability,
                 ..GuidingConfig::default()
             },
             cache,
@@ -577,8 +583,10 @@ fn header(args: &Args, command: &str) -> String {
             .spp
             .map_or(String::new(), |n| format!(", at most {n} spp")),
         args.budget.training_share,
-        args.guide_probability
-            .map_or("learned".to_string(), |p| format!("fixed at {p}")),
+        args.guide_probability.map_or(
+            format!("learned up to {}", args.max_guide_probability),
+            |p| format!("fixed at {p}")
+        ),
         if args.nee { "on" } else { "off" },
         rayon::current_num_threads(),
     );

@@ -53,6 +53,8 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     });
     out.0.extend_from_slice(&[0; 3]);
     out.f32(c.gain_threshold);
+    debug_assert_eq!(out.0.len(), META_LEN_2_3);
+    out.f32(c.max_guide_probability);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -139,6 +141,13 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         r.take(3)?;
         field.config.gain_threshold = r.f32()?;
     }
+    // 2.4: the guide probability's bound. An older file learned up to the largest, and keeps
+    // learning so.
+    field.config.max_guide_probability = if r.bytes.is_empty() {
+        MAX_GUIDE_PROBABILITY
+    } else {
+        r.f32()?
+    };
     field
         .config
         .validate()

@@ -57,8 +57,10 @@ pub const FORMAT_MAJOR: u16 = 2;
 /// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
 /// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]) — an older
 /// reader refuses files that use them — and 2.3 the optional `CONTINUATIONS` section (the
-/// moments [`splitting`](crate::splitting) learns from), which an older reader skips.
-pub const FORMAT_MINOR: u16 = 3;
+/// moments [`splitting`](crate::splitting) learns from), which an older reader skips; 2.4
+/// appends [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) to `META`,
+/// which an older reader ignores (it learns up to its own bound).
+pub const FORMAT_MINOR: u16 = 4;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -83,9 +85,11 @@ const FLAG_REQUIRED: u32 = 1;
 const META_LEN_1_0: usize = 176;
 /// Length of the `META` section in format 1.1.
 const META_LEN_1_1: usize = 184;
+/// Length of the `META` section in formats 1.2 to 2.3.
+const META_LEN_2_3: usize = 192;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
-/// filters, 1.2 the refinement criterion and its threshold).
-const META_LEN: usize = 192;
+/// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound).
+const META_LEN: usize = 196;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;

@@ -25,6 +25,8 @@ pub(crate) struct RefineParams {
     pub max_depth: u32,
     pub max_nodes: u32,
     pub prior_samples: f64,
+    /// The guide probability's upper bound.
+    pub max_guide_probability: f32,
     /// Whether recording defers the directional box filter to refine (give leaves pending sums).
     pub deferred: bool,
 }
@@ -163,7 +165,7 @@ impl DirectionalTree {
     /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
     /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
     pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
-        self.selection.step();
+        self.selection.step(params.max_guide_probability);
         self.continuations.step();
         self.recording.flush_pending_mut();
         let samples = self.recording.count();
