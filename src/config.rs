@@ -11,6 +11,12 @@ use std::fmt;
 /// side, about as fine as `f32` sample coordinates can still resolve uniformly.
 pub const MAX_DIRECTIONAL_DEPTH: u32 = 20;
 
+/// The smallest [`GuidingConfig::uniform_fraction`]. A cell of the deepest level holds 4⁻²⁰ of
+/// the square, so every sampling probability of a node is at least `ε·4⁻²⁰`; from 10⁻⁹ that is
+/// above 10⁻²¹, which `f32` holds exactly enough, where a smaller `ε` could round a cell's
+/// probability to zero and give a direction `sample` drew a density of 0.
+pub const MIN_UNIFORM_FRACTION: f32 = 1e-9;
+
 /// How a [`GuidingField`](crate::GuidingField) learns and how large it may grow.
 ///
 /// Serializable (missing fields take their defaults) and checked by [`GuidingConfig::validate`],
@@ -46,7 +52,8 @@ pub struct GuidingConfig {
     pub max_directional_depth: u32,
     /// Fraction of every distribution spread uniformly over the sphere (default 0.01), so that no
     /// direction has zero density — cells that saw no light this iteration may still carry some,
-    /// and a zero pdf there would bias the estimator. Must be in `(0, 1]`; 1 is uniform sampling.
+    /// and a zero pdf there would bias the estimator. Must be in
+    /// `[`[`MIN_UNIFORM_FRACTION`]`, 1]`; 1 is uniform sampling.
     pub uniform_fraction: f32,
     /// Cap on interior nodes per directional quadtree (default 8192). Refinement splits the
     /// cells with the largest share first and stops at the cap. Must be in `1..=65535`.
@@ -149,10 +156,10 @@ impl GuidingConfig {
             "an integer in 1..=20",
         )?;
         check(
-            self.uniform_fraction > 0.0 && self.uniform_fraction <= 1.0,
+            (MIN_UNIFORM_FRACTION..=1.0).contains(&self.uniform_fraction),
             "uniform_fraction",
             self.uniform_fraction.to_string(),
-            "a number in (0, 1]",
+            "a number in [1e-9, 1]",
         )?;
         check(
             (1..=crate::quadtree::MAX_NODES).contains(&self.max_directional_nodes),

@@ -106,7 +106,7 @@ pub use glam;
 
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
-pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH};
+pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH, MIN_UNIFORM_FRACTION};
 pub use distribution::{DirectionalDistribution, SurfaceDistribution};
 pub use field::{GuidingField, SpatialCell};
 pub use filter::{DirectionalFilter, SpatialFilter};

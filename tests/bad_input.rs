@@ -218,7 +218,7 @@ fn any_jitter_is_recorded_into_a_valid_cell() {
 #[test]
 fn absurd_configs_and_bounds_are_typed_errors() {
     let ok = GuidingConfig::default();
-    let cases: [(GuidingConfig, &str); 16] = [
+    let cases: [(GuidingConfig, &str); 17] = [
         (
             GuidingConfig {
                 spatial_threshold: NAN,
@@ -271,6 +271,13 @@ fn absurd_configs_and_bounds_are_typed_errors() {
         (
             GuidingConfig {
                 uniform_fraction: 1.5,
+                ..ok.clone()
+            },
+            "uniform_fraction",
+        ),
+        (
+            GuidingConfig {
+                uniform_fraction: 1e-10,
                 ..ok.clone()
             },
             "uniform_fraction",
@@ -426,4 +433,43 @@ fn config_round_trips_through_serde_and_fills_missing_fields() {
         GuidingConfig::default().spatial_threshold
     );
     assert!(serde_json::from_str::<GuidingConfig>(r#"{"rho":0.5}"#).is_err());
+}
+
+#[test]
+fn the_smallest_uniform_fraction_leaves_no_drawn_direction_at_zero_density() {
+    // All light from one direction, refined seven levels deep around it, with the smallest
+    // uniform share: the cells away from the light hold about ε·4⁻ᵈ of the mass, and
+    // draws at the edges of `[0,1)²` (where rounding picks the last quadrant of a node) must
+    // still get a positive density that `pdf` agrees with.
+    let config = GuidingConfig {
+        uniform_fraction: sdguide::MIN_UNIFORM_FRACTION,
+        refinement: sdguide::Refinement::FluxShare,
+        directional_filter: sdguide::DirectionalFilter::Nearest,
+        spatial_threshold: 1e9,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config).unwrap();
+    let (x, light) = (Vec3::splat(0.5), Vec3::new(0.3, -0.5, 0.81).normalize());
+    for _ in 0..16 {
+        for _ in 0..2000 {
+            field.record(&Sample {
+                position: x,
+                direction: light,
+                value: 1.0,
+                pdf: 1.0,
+                ..Sample::default()
+            });
+        }
+        field.refine();
+    }
+    assert!(field.stats().directional_depth >= 7, "{:?}", field.stats());
+    let edge = [0.0, 1e-7, 0.5, 1.0 - f32::EPSILON / 2.0, 1.0, 9.0];
+    let dist = field.distribution(x);
+    for &ux in &edge {
+        for &uy in &edge {
+            let (d, pdf) = dist.sample(Vec2::new(ux, uy));
+            assert!(pdf > 0.0 && pdf.is_finite(), "u = ({ux}, {uy}): pdf {pdf}");
+            assert_eq!(pdf.to_bits(), dist.pdf(d).to_bits(), "u = ({ux}, {uy})");
+        }
+    }
 }

@@ -143,7 +143,7 @@ typedef struct {
    */
   uint32_t max_directional_depth;
   /*
-   Share of every distribution spread uniformly, in (0, 1].
+   Share of every distribution spread uniformly, in [1e-9, 1].
    */
   float uniform_fraction;
   /*

@@ -130,7 +130,7 @@ pub struct sdg_config {
     pub subdivision_threshold: f32,
     /// Deepest directional level, 1..=20.
     pub max_directional_depth: u32,
-    /// Share of every distribution spread uniformly, in (0, 1].
+    /// Share of every distribution spread uniformly, in [1e-9, 1].
     pub uniform_fraction: f32,
     /// Interior nodes per directional tree, 1..=65535.
     pub max_directional_nodes: u32,
