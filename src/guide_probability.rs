@@ -126,11 +126,11 @@ impl GuideSelection {
         if s.count >= MIN_SELECTION_SAMPLES && s.curvature > 0.0 && s.curvature.is_finite() {
             let next = f64::from(self.probability) + s.gradient / (2.0 * s.curvature);
             if next.is_finite() {
-                self.probability = (next as f32).clamp(MIN_GUIDE_PROBABILITY, max);
+                self.probability = next as f32;
             }
         }
-        // A leaf that learned nothing still obeys the bound.
-        self.probability = self.probability.min(max);
+        // Also a leaf that learned nothing obeys the bound.
+        self.probability = self.probability.clamp(MIN_GUIDE_PROBABILITY, max);
         *self = Self::from_parts(self.probability, SelectionSums::default());
     }
 
