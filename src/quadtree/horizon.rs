@@ -42,11 +42,12 @@
 //! normal, so `sample` and `pdf` switch at the same place.
 //!
 //! **What a level costs.** The levels form a chain: each level's corners depend on the quadrant
-//! the level above chose. The corners of cells above [`TABLE_DEPTH`] (where almost every descent
-//! spends its levels) are looked up in one table of directions shared by every tree, a dot
-//! product each, instead of mapped (docs/performance.md measures both). What is left is mostly
-//! the load of each level's node, a cache miss on a large field, which the plain descent waits
-//! for too.
+//! the level above chose. The children's corners of cells above [`TABLE_DEPTH`] (where almost
+//! every descent spends its levels) are looked up in one table shared by every tree, laid out
+//! so that a level's sixteen corner cosines are twelve vector multiply-adds, instead of mapped;
+//! and the level keeps its quadrants' weights unnormalized, with one reciprocal of their total
+//! (docs/performance.md measures both). The chain, not the instruction count, is what a level
+//! costs now: each level waits for the one above.
 
 use super::sampling::{place, unit};
 use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
@@ -140,25 +141,53 @@ fn cosines(n: Vec3, sx: Vec4, sy: Vec4) -> Vec4 {
     x * n.x + y * n.y + z * n.z
 }
 
-/// The depth of the finest grid of cell corners whose directions are kept in [`CORNERS`]: the
-/// levels above it (where almost every descent spends its levels) look their corners up
-/// instead of mapping them, which takes the map's division, square root and polynomials off the
-/// chain of dependent steps from one level to the next.
+/// The depth of the finest grid of cell corners kept in [`CORNERS`]: the levels above it (where
+/// almost every descent spends its levels) look their children's corners up instead of mapping
+/// them, which takes the map's division, square root and polynomials off the chain of dependent
+/// steps from one level to the next.
 const TABLE_DEPTH: u32 = 6;
 
-/// Points per side of the corner grid at [`TABLE_DEPTH`].
-const TABLE_SIDE: usize = (1 << TABLE_DEPTH) + 1;
+/// The corners of a cell's four children, laid out for four dot products at once: `c[k]` holds
+/// corner `k = i + 2·j` (corner `(i, j)` of the child's square) of child `q` in lane `q`, as
+/// the three coordinates `[x, y, z]` of its direction.
+type ChildCorners = [[Vec4; 3]; 4];
 
-/// The directions of the grid points `(i, j)·2^-TABLE_DEPTH`, row-major (`j·TABLE_SIDE + i`),
-/// by the exact map: 4225 directions, 51 KB, shared by every tree.
-static CORNERS: LazyLock<Box<[Vec3]>> = LazyLock::new(|| {
-    let step = 1.0 / (TABLE_SIDE - 1) as f32;
-    (0..TABLE_SIDE * TABLE_SIDE)
-        .map(|k| {
-            let (i, j) = (k % TABLE_SIDE, k / TABLE_SIDE);
-            square_to_direction(Vec2::new(i as f32 * step, j as f32 * step))
-        })
-        .collect()
+/// Where the cells of `depth` start in [`CORNERS`]: the cells above it come first.
+#[inline]
+fn table_offset(depth: u32) -> usize {
+    ((1usize << (2 * depth)) - 1) / 3
+}
+
+/// [`ChildCorners`] of every cell above [`TABLE_DEPTH`], depth by depth and row-major within a
+/// depth (cell `(x, y)` at `depth` is entry `table_offset(depth) + y·2^depth + x`), by the exact
+/// map: 1365 cells, 262 KB, shared by every tree. A level reads one entry, 192 contiguous bytes,
+/// and needs no gather or shuffle to turn it into its children's corner ranges.
+static CORNERS: LazyLock<Box<[ChildCorners]>> = LazyLock::new(|| {
+    let mut table = Vec::with_capacity(table_offset(TABLE_DEPTH));
+    for depth in 0..TABLE_DEPTH {
+        let side = 1u32 << depth;
+        // Grid point (i, j) of the children's grid is (2·cell + (i, j))·2^-(depth + 1): exact.
+        let half = f32::from_bits((126 - depth) << 23);
+        for cy in 0..side {
+            for cx in 0..side {
+                let mut entry = [[Vec4::ZERO; 3]; 4];
+                for (k, corner) in entry.iter_mut().enumerate() {
+                    let mut lanes = [[0.0f32; 4]; 3];
+                    for q in 0..4 {
+                        let gx = 2 * cx + (q & 1) as u32 + (k & 1) as u32;
+                        let gy = 2 * cy + (q >> 1) as u32 + (k >> 1) as u32;
+                        let d = square_to_direction(Vec2::new(gx as f32, gy as f32) * half);
+                        for (axis, lane) in lanes.iter_mut().enumerate() {
+                            lane[q] = d[axis];
+                        }
+                    }
+                    *corner = lanes.map(Vec4::from_array);
+                }
+                table.push(entry);
+            }
+        }
+    }
+    table.into_boxed_slice()
 });
 
 /// The range `[lo, hi]` of `n·ω` over the corners of each of the four children of the cell
@@ -167,34 +196,16 @@ static CORNERS: LazyLock<Box<[Vec3]>> = LazyLock::new(|| {
 /// groups of four, below it.
 #[inline]
 fn child_corner_range(n: Vec3, cell: [u32; 2], depth: u32) -> (Vec4, Vec4) {
-    let g = if depth < TABLE_DEPTH {
-        // Grid point (i, j) at depth + 1 is table point (2·cell + (i, j))·2^shift.
-        let shift = TABLE_DEPTH - depth - 1;
-        let corners: &[Vec3] = &CORNERS;
-        let (x0, y0) = (
-            (cell[0] as usize) << (shift + 1),
-            (cell[1] as usize) << (shift + 1),
-        );
-        let step = 1usize << shift;
-        let at = |i: usize, j: usize| {
-            corners
-                .get((y0 + j * step) * TABLE_SIDE + x0 + i * step)
-                .map_or(0.0, |c| c.dot(n))
-        };
-        [
-            at(0, 0),
-            at(1, 0),
-            at(2, 0),
-            at(0, 1),
-            at(1, 1),
-            at(2, 1),
-            at(0, 2),
-            at(1, 2),
-            at(2, 2),
-        ]
-    } else {
-        mapped_grid(n, cell, depth)
-    };
+    if depth < TABLE_DEPTH {
+        let index = table_offset(depth) + ((cell[1] as usize) << depth) + cell[0] as usize;
+        let table: &[ChildCorners] = &CORNERS;
+        if let Some(corners) = table.get(index) {
+            let (nx, ny, nz) = (Vec4::splat(n.x), Vec4::splat(n.y), Vec4::splat(n.z));
+            let [a, b, c, d] = corners.map(|[x, y, z]| x * nx + y * ny + z * nz);
+            return (a.min(b).min(c.min(d)), a.max(b).max(c.max(d)));
+        }
+    }
+    let g = mapped_grid(n, cell, depth);
     // Child q's corners: its lower-left grid point k = iy·3 + ix, and k+1, k+3, k+4.
     let at = |k: usize| Vec4::new(g[k], g[k + 1], g[k + 3], g[k + 4]);
     let (a, b, c, d) = (at(0), at(1), at(3), at(4));
@@ -225,71 +236,55 @@ fn mapped_grid(n: Vec3, cell: [u32; 2], depth: u32) -> [f32; 9] {
     [g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w, g2.x]
 }
 
-/// One level of the product's descent: the conditionals of the four quadrants, as a
-/// [`SamplingNode`] holds them, and the range of the cosine over each child's corners.
+/// One level of the product's descent: each quadrant's weight (the guide's probability times
+/// the estimate of the cosine), the reciprocal of their total, and the range of the cosine over
+/// each child's corners. The product's conditionals are the weights over their total; sample
+/// and pdf both take a quadrant's density factor as `4·w_q·(1/total)`, so they multiply the
+/// same factors.
 struct Level {
-    px: [f32; 2],
-    py: [[f32; 2]; 2],
+    w: Vec4,
+    inv_total: f32,
     lo: Vec4,
     hi: Vec4,
 }
 
 impl Level {
-    /// The product's conditionals at the node `guide` (the guide's own, or uniform inside a
-    /// leaf) whose cell is `cell` at `depth`. Where every quadrant's estimate is zero (a cell
-    /// wholly below the horizon, entered only through the estimate's slack) the guide's own
-    /// conditionals stand, so the conditionals always sum to 1.
+    /// The level at the node `guide` (the guide's own, or uniform inside a leaf) whose cell is
+    /// `cell` at `depth`. Where every quadrant's estimate is zero (a cell wholly below the
+    /// horizon, entered only through the estimate's slack) the guide's own probabilities stand,
+    /// so the conditionals always sum to 1.
     #[inline]
     fn new(guide: &SamplingNode, n: Vec3, cell: [u32; 2], depth: u32) -> Self {
         let (lo, hi) = child_corner_range(n, cell, depth);
-        let p = Vec4::new(
-            guide.px[0] * guide.py[0][0],
-            guide.px[1] * guide.py[1][0],
-            guide.px[0] * guide.py[0][1],
-            guide.px[1] * guide.py[1][1],
-        );
-        let w = (p * clamped_cosine(lo, hi, depth + 1)).to_array();
-        let col = [w[0] + w[2], w[1] + w[3]];
-        let total = col[0] + col[1];
-        if total.is_nan() || total <= 0.0 {
-            return Self {
-                px: guide.px,
-                py: guide.py,
-                lo,
-                hi,
-            };
-        }
-        let within = |ix: usize| {
-            if col[ix] > 0.0 {
-                [w[ix] / col[ix], w[ix + 2] / col[ix]]
-            } else {
-                [0.5, 0.5]
-            }
-        };
+        let p = guide.quadrants();
+        let w = p * clamped_cosine(lo, hi, depth + 1);
+        let total = w.element_sum();
+        let w = if total > 0.0 { w } else { p };
         Self {
-            px: [col[0] / total, col[1] / total],
-            py: [within(0), within(1)],
+            w,
+            inv_total: 1.0 / w.element_sum(),
             lo,
             hi,
         }
     }
 
-    /// The guide's own conditionals, below a cell where the cosine has settled. The corner
+    /// The guide's own probabilities, below a cell where the cosine has settled. The corner
     /// range it reports, `[1, 1]`, keeps the descent going exactly where the guide's tree does.
     #[inline]
     fn settled(guide: &SamplingNode) -> Self {
+        let w = guide.quadrants();
         Self {
-            px: guide.px,
-            py: guide.py,
+            w,
+            inv_total: 1.0 / w.element_sum(),
             lo: Vec4::ONE,
             hi: Vec4::ONE,
         }
     }
 
-    /// `4·P(q)`, as [`SamplingNode`]'s: sample and pdf multiply the same factors.
+    /// `4·P(q)`: sample and pdf multiply the same factors.
     #[inline]
-    fn density_factor(&self, ix: usize, iy: usize) -> f32 {
-        4.0 * self.px[ix] * self.py[ix][iy]
+    fn density_factor(&self, q: usize) -> f32 {
+        4.0 * self.w[q] * self.inv_total
     }
 
     /// Whether the child `q`, a leaf of the guide's tree at `depth`, is descended further:
@@ -360,13 +355,14 @@ impl Cursor {
     }
 }
 
-/// The column (or row) `u` falls in, never one of probability zero (rounding at the end of an
-/// interval could otherwise pick it).
+/// Which of two parts of weights `a` and `b` (not both zero) the point `u` of an interval falls
+/// in, given the cut between them; never one of weight zero (rounding at the end of an interval
+/// could otherwise pick it).
 #[inline]
-fn choose(p: [f32; 2], u: f32, cut: f32) -> usize {
-    if p[1] == 0.0 {
+fn choose(a: f32, b: f32, u: f32, cut: f32) -> usize {
+    if b == 0.0 {
         0
-    } else if p[0] == 0.0 {
+    } else if a == 0.0 {
         1
     } else {
         usize::from(u >= cut)
@@ -384,12 +380,20 @@ impl SamplingTree {
         let mut at = Cursor::ROOT;
         loop {
             let level = at.level(self, n);
-            let ix = choose(level.px, u.x, a.x + w.x * level.px[0]);
-            let py = level.py[ix];
-            let iy = choose(py, u.y, a.y + w.y * py[0]);
-            a += Vec2::new(w.x * level.px[0] * ix as f32, w.y * py[0] * iy as f32);
-            w *= Vec2::new(level.px[ix], py[iy]);
-            pdf *= level.density_factor(ix, iy);
+            let m = level.w;
+            // The column by its share of the total, then the cell by its share of the column.
+            let col = [m.x + m.z, m.y + m.w];
+            let left = w.x * (col[0] * level.inv_total);
+            let ix = choose(col[0], col[1], u.x, a.x + left);
+            let (lower, upper) = if ix == 0 { (m.x, m.z) } else { (m.y, m.w) };
+            let low = w.y * (lower / col[ix]);
+            let iy = choose(lower, upper, u.y, a.y + low);
+            a += Vec2::new(left * ix as f32, low * iy as f32);
+            w *= Vec2::new(
+                col[ix] * level.inv_total,
+                if iy == 0 { lower } else { upper } / col[ix],
+            );
+            pdf *= level.density_factor(ix | iy << 1);
             if !at.enter(self, &level, ix, iy) {
                 break;
             }
@@ -409,7 +413,7 @@ impl SamplingTree {
         loop {
             let level = at.level(self, n);
             let (ix, iy) = quadrant_bits(p, at.depth + 1);
-            pdf *= level.density_factor(ix, iy);
+            pdf *= level.density_factor(ix | iy << 1);
             if pdf == 0.0 || !at.enter(self, &level, ix, iy) {
                 return pdf;
             }
@@ -563,7 +567,7 @@ mod tests {
             let level = at.level(tree, n);
             for q in 0..4 {
                 let (ix, iy) = (q & 1, q >> 1);
-                let pq = p * f64::from(level.density_factor(ix, iy)) / 4.0;
+                let pq = p * f64::from(level.density_factor(ix | iy << 1)) / 4.0;
                 if pq == 0.0 {
                     continue;
                 }

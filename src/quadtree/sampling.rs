@@ -5,7 +5,7 @@
 
 use super::{DirectionalCell, NO_CHILD, fixed, quadrant_bits};
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 
 /// One interior node of a sampling tree: 32 bytes, two to a cache line.
 ///
@@ -28,6 +28,17 @@ impl SamplingNode {
     #[inline]
     fn density_factor(&self, ix: usize, iy: usize) -> f32 {
         4.0 * self.px[ix] * self.py[ix][iy]
+    }
+
+    /// The four quadrants' probabilities, quadrant `q = ix + 2·iy` in lane `q`.
+    #[inline]
+    pub(crate) fn quadrants(&self) -> Vec4 {
+        Vec4::new(
+            self.px[0] * self.py[0][0],
+            self.px[1] * self.py[1][0],
+            self.px[0] * self.py[0][1],
+            self.px[1] * self.py[1][1],
+        )
     }
 
     /// The node for quadrant masses `m` (all positive).
