@@ -46,10 +46,12 @@
 //! every descent spends its levels) are looked up in one table shared by every tree, laid out
 //! so that a level's sixteen corner cosines are twelve vector multiply-adds, instead of mapped;
 //! and the level keeps its quadrants' weights unnormalized, with one reciprocal of their total
-//! (docs/performance.md measures both). The chain, not the instruction count, is what a level
-//! costs now: each level waits for the one above.
+//! (docs/performance.md measures both). The descent's choices are bit masks, never jumps (a
+//! random choice is a coin flip that a branch predictor misses half the time), and the level is
+//! computed inline in the descent. What is left is the chain itself: each level waits for the
+//! one above.
 
-use super::sampling::{place, unit};
+use super::sampling::{pick, place, unit};
 use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
 use crate::sphere::square_to_direction;
 use glam::{Vec2, Vec3, Vec4};
@@ -240,12 +242,14 @@ fn mapped_grid(n: Vec3, cell: [u32; 2], depth: u32) -> [f32; 9] {
 /// the estimate of the cosine), the reciprocal of their total, and the range of the cosine over
 /// each child's corners. The product's conditionals are the weights over their total; sample
 /// and pdf both take a quadrant's density factor as `4·w_q·(1/total)`, so they multiply the
-/// same factors.
+/// same factors. Arrays, not vectors: the descent picks lanes by the quadrant it chose, and an
+/// array is indexed by a load where a vector's lane is picked by a jump on the index, which
+/// random choices mispredict.
 struct Level {
-    w: Vec4,
+    w: [f32; 4],
     inv_total: f32,
-    lo: Vec4,
-    hi: Vec4,
+    lo: [f32; 4],
+    hi: [f32; 4],
 }
 
 impl Level {
@@ -261,10 +265,10 @@ impl Level {
         let total = w.element_sum();
         let w = if total > 0.0 { w } else { p };
         Self {
-            w,
+            w: w.to_array(),
             inv_total: 1.0 / w.element_sum(),
-            lo,
-            hi,
+            lo: lo.to_array(),
+            hi: hi.to_array(),
         }
     }
 
@@ -274,10 +278,10 @@ impl Level {
     fn settled(guide: &SamplingNode) -> Self {
         let w = guide.quadrants();
         Self {
-            w,
+            w: w.to_array(),
             inv_total: 1.0 / w.element_sum(),
-            lo: Vec4::ONE,
-            hi: Vec4::ONE,
+            lo: [1.0; 4],
+            hi: [1.0; 4],
         }
     }
 
@@ -320,7 +324,7 @@ impl Cursor {
     };
 
     /// The level at the cursor's node.
-    #[inline]
+    #[inline(always)]
     fn level(&self, tree: &SamplingTree, n: Vec3) -> Level {
         let guide = match self.node {
             Some(i) => &tree.nodes()[i],
@@ -357,16 +361,11 @@ impl Cursor {
 
 /// Which of two parts of weights `a` and `b` (not both zero) the point `u` of an interval falls
 /// in, given the cut between them; never one of weight zero (rounding at the end of an interval
-/// could otherwise pick it).
+/// could otherwise pick it). Branch-free: with random `u` the choice is a coin flip no predictor
+/// can learn.
 #[inline]
 fn choose(a: f32, b: f32, u: f32, cut: f32) -> usize {
-    if b == 0.0 {
-        0
-    } else if a == 0.0 {
-        1
-    } else {
-        usize::from(u >= cut)
-    }
+    usize::from((u >= cut) & (b != 0.0) | (a == 0.0))
 }
 
 impl SamplingTree {
@@ -381,19 +380,20 @@ impl SamplingTree {
         loop {
             let level = at.level(self, n);
             let m = level.w;
-            // The column by its share of the total, then the cell by its share of the column.
-            let col = [m.x + m.z, m.y + m.w];
+            // The column by its share of the total, then the cell by its share of the column;
+            // every choice picks by bit masks, never by a jump.
+            let col = [m[0] + m[2], m[1] + m[3]];
             let left = w.x * (col[0] * level.inv_total);
             let ix = choose(col[0], col[1], u.x, a.x + left);
-            let (lower, upper) = if ix == 0 { (m.x, m.z) } else { (m.y, m.w) };
-            let low = w.y * (lower / col[ix]);
+            let (lower, upper) = (pick(ix, m[0], m[1]), pick(ix, m[2], m[3]));
+            let column = pick(ix, col[0], col[1]);
+            let low = w.y * (lower / column);
             let iy = choose(lower, upper, u.y, a.y + low);
-            a += Vec2::new(left * ix as f32, low * iy as f32);
-            w *= Vec2::new(
-                col[ix] * level.inv_total,
-                if iy == 0 { lower } else { upper } / col[ix],
-            );
-            pdf *= level.density_factor(ix | iy << 1);
+            let chosen = pick(iy, lower, upper);
+            a += Vec2::new(pick(ix, 0.0, left), pick(iy, 0.0, low));
+            w *= Vec2::new(column * level.inv_total, chosen / column);
+            // `density_factor` of the chosen quadrant, whose weight is `chosen`.
+            pdf *= 4.0 * chosen * level.inv_total;
             if !at.enter(self, &level, ix, iy) {
                 break;
             }
