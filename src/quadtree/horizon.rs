@@ -262,8 +262,13 @@ impl Level {
         let (lo, hi) = child_corner_range(n, cell, depth);
         let p = guide.quadrants();
         let w = p * clamped_cosine(lo, hi, depth + 1);
-        let total = w.element_sum();
-        let w = if total > 0.0 { w } else { p };
+        let w = if w.element_sum() > 0.0 { w } else { p };
+        Self::of(w, lo, hi)
+    }
+
+    /// The level of weights `w` (positive total) and corner ranges `[lo, hi]`.
+    #[inline]
+    fn of(w: Vec4, lo: Vec4, hi: Vec4) -> Self {
         Self {
             w: w.to_array(),
             inv_total: 1.0 / w.element_sum(),
@@ -276,13 +281,7 @@ impl Level {
     /// range it reports, `[1, 1]`, keeps the descent going exactly where the guide's tree does.
     #[inline]
     fn settled(guide: &SamplingNode) -> Self {
-        let w = guide.quadrants();
-        Self {
-            w: w.to_array(),
-            inv_total: 1.0 / w.element_sum(),
-            lo: [1.0; 4],
-            hi: [1.0; 4],
-        }
+        Self::of(guide.quadrants(), Vec4::ONE, Vec4::ONE)
     }
 
     /// `4·P(q)`: sample and pdf multiply the same factors.
@@ -389,11 +388,10 @@ impl SamplingTree {
             let column = pick(ix, col[0], col[1]);
             let low = w.y * (lower / column);
             let iy = choose(lower, upper, u.y, a.y + low);
-            let chosen = pick(iy, lower, upper);
+            let q = ix | iy << 1;
             a += Vec2::new(pick(ix, 0.0, left), pick(iy, 0.0, low));
-            w *= Vec2::new(column * level.inv_total, chosen / column);
-            // `density_factor` of the chosen quadrant, whose weight is `chosen`.
-            pdf *= 4.0 * chosen * level.inv_total;
+            w *= Vec2::new(column * level.inv_total, m[q] / column);
+            pdf *= level.density_factor(q);
             if !at.enter(self, &level, ix, iy) {
                 break;
             }
