@@ -18,7 +18,7 @@ use sdguide::{
     Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
     SpatialFilter,
 };
-use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
+use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point, room_vertex};
 use std::hint::black_box;
 use std::sync::OnceLock;
 
@@ -205,6 +205,25 @@ fn bench_query(c: &mut Criterion) {
             acc
         })
     });
+    // The same at the room's walls and floor, whose normals the field stored products for
+    // (recorded with the workload's samples); the sphere's points take the per-query product.
+    let vertices: Vec<(Vec3, Vec3)> = (0..BATCH)
+        .map(|_| room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]))
+        .collect();
+    g.bench_function(
+        "distribution+at_surface+sample+pdf, recorded normals",
+        |b| {
+            b.iter(|| {
+                let mut acc = 0.0f32;
+                for (&(_, u, other), &(x, n)) in queries.iter().zip(&vertices) {
+                    let dist = field.distribution(black_box(x)).at_surface(black_box(n));
+                    let (d, p) = dist.sample(black_box(u));
+                    acc += p + d.x + dist.pdf(black_box(other));
+                }
+                acc
+            })
+        },
+    );
     g.bench_function("distribution", |b| {
         b.iter(|| {
             queries

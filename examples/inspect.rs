@@ -79,6 +79,10 @@ fn main() -> ExitCode {
         s.rejected.total()
     );
     println!("  memory             {} bytes", s.bytes);
+    println!(
+        "  surface products   {} ({} nodes)",
+        s.surface_products, s.surface_product_nodes
+    );
 
     let at = args.at.unwrap_or(b.center());
     let cell = field.cell_at(at);

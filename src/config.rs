@@ -64,8 +64,10 @@ pub struct GuidingConfig {
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
     /// footprint above it is refused, and each directional tree is held to its share of it
     /// (`max_memory_bytes / (trees · 336 bytes)` interior nodes, 336 bytes bounding what one
-    /// node costs, 528 under [`DirectionalFilter::DeferredBox`]); refusals are counted. Must be
-    /// ≥ 64 KiB.
+    /// node costs, 528 under [`DirectionalFilter::DeferredBox`]); refusals are counted. The
+    /// products stored for frequent surface normals (see [`Sample::normal`](crate::Sample::normal))
+    /// count too, and are dropped, largest first, where they would take the footprint above
+    /// it. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
     /// when leaf masses are computed (default 0.5, chosen with the quality harness for the

@@ -7,7 +7,9 @@
 //! preserves area), and `sample` returns exactly the density `pdf` gives its direction.
 
 use crate::DirectionalCell;
-use crate::quadtree::{DirectionalTree, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree};
+use crate::quadtree::{
+    DirectionalTree, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree, SurfaceTree, Surfaces,
+};
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::splitting::ContinuationEstimate;
 use glam::{Vec2, Vec3};
@@ -20,6 +22,7 @@ pub struct DirectionalDistribution<'a> {
     tree: &'a SamplingTree,
     guide_probability: f32,
     continuation: &'a ContinuationEstimate,
+    surfaces: &'a Surfaces,
 }
 
 impl<'a> DirectionalDistribution<'a> {
@@ -30,6 +33,7 @@ impl<'a> DirectionalDistribution<'a> {
             tree: &tree.sampling,
             guide_probability: tree.selection.probability,
             continuation: &tree.continuations.estimate,
+            surfaces: &tree.surfaces,
         }
     }
 
@@ -91,10 +95,12 @@ impl<'a> DirectionalDistribution<'a> {
     /// normal `normal` (any length; it is normalized): what a vertex on a surface that only
     /// reflects should sample, since the integrand `f·cos·L` is zero below it.
     ///
-    /// The product is built during the descent, not stored: at each node of the guide's tree
-    /// each quadrant's probability is weighed by an estimate of the cosine over it (from the
-    /// cosine at its corners), and leaves the horizon crosses are descended further, as if
-    /// split, down to depth 16. Its density is exact (the product of the conditionals chosen),
+    /// At each node of the guide's tree each quadrant's probability is weighed by an estimate
+    /// of the cosine over it (from the cosine at its corners), and leaves the horizon crosses
+    /// are descended further, as if split, down to depth 16. For a normal recorded often in
+    /// the cell (see [`Sample::normal`](crate::Sample::normal)) the weights are stored at
+    /// `refine` and the query descends them like the plain distribution; for any other normal
+    /// they are computed on the way down. Either way it is the same distribution. Its density is exact (the product of the conditionals chosen),
     /// positive wherever `n·ω > 0`, and zero on cells the estimate proves wholly below the
     /// horizon. What is drawn below lies mostly within a hair of the horizon: on the tests'
     /// trained field 0.03% of the draws on average over cells and normals, at most 3% where
@@ -115,9 +121,11 @@ impl<'a> DirectionalDistribution<'a> {
     /// ```
     #[inline]
     pub fn at_surface(&self, normal: Vec3) -> SurfaceDistribution<'a> {
+        let normal = sphere::normalize(normal);
         SurfaceDistribution {
             plain: *self,
-            normal: sphere::normalize(normal),
+            normal,
+            stored: normal.and_then(|n| self.surfaces.product(n)),
         }
     }
 
@@ -130,14 +138,16 @@ impl<'a> DirectionalDistribution<'a> {
 /// A [`DirectionalDistribution`]'s product with a surface's clamped cosine, from
 /// [`DirectionalDistribution::at_surface`].
 ///
-/// Cheap to create and to copy; `sample` and `pdf` neither allocate nor lock. They cost more
-/// than the plain distribution's (the weights are computed on the way down; the benches
-/// measure both).
+/// Cheap to create and to copy; `sample` and `pdf` neither allocate nor lock. With a normal
+/// the cell stores the product for, they cost about what the plain distribution's do; with
+/// another, more (the weights are computed on the way down; the benches measure both).
 #[derive(Clone, Copy, Debug)]
 pub struct SurfaceDistribution<'a> {
     plain: DirectionalDistribution<'a>,
     /// The unit normal; `None` for a normal that has no direction (the plain distribution).
     normal: Option<Vec3>,
+    /// The spatial leaf's stored product with this normal, if it has one.
+    stored: Option<&'a SurfaceTree>,
 }
 
 impl SurfaceDistribution<'_> {
@@ -148,22 +158,32 @@ impl SurfaceDistribution<'_> {
         let Some(n) = self.normal else {
             return self.plain.sample(u);
         };
-        let (s, pdf, near_border, centre) = self.plain.tree.sample_surface(n, u);
+        let (s, pdf, near_border, centre) = match self.stored {
+            Some(stored) => stored.sample(u),
+            None => self.plain.tree.sample_surface(n, u),
+        };
         let direction = square_to_direction(s);
         if !near_border {
             return (direction, pdf * INV_SPHERE_AREA);
         }
-        let tree = self.plain.tree;
-        let back = sphere::square_of(direction).map_or(0.0, |back| tree.pdf_surface(n, back));
+        self.across_border(direction, centre)
+    }
+
+    /// What `sample` returns for a point that may lie within rounding distance of its cell's
+    /// border: the density `pdf` finds for its direction (the round trip through the sphere may
+    /// have moved it into the neighbour). Rarely taken.
+    #[cold]
+    #[inline(never)]
+    fn across_border(&self, direction: Vec3, centre: Vec2) -> (Vec3, f32) {
+        let back = self.pdf(direction);
         if back > 0.0 {
-            return (direction, back * INV_SPHERE_AREA);
+            return (direction, back);
         }
         // The point came back in a neighbour wholly below the horizon, where the density is
         // 0: draw the cell's centre instead (a sliver of rounding width moves there), whose
         // round trip stays in the cell.
         let direction = square_to_direction(centre);
-        let pdf = sphere::square_of(direction).map_or(0.0, |back| tree.pdf_surface(n, back));
-        (direction, pdf * INV_SPHERE_AREA)
+        (direction, self.pdf(direction))
     }
 
     /// The solid-angle density of drawing `direction` (which need not be unit length; a zero
@@ -173,10 +193,12 @@ impl SurfaceDistribution<'_> {
         let Some(n) = self.normal else {
             return self.plain.pdf(direction);
         };
-        match sphere::square_of(direction) {
-            Some(s) => self.plain.tree.pdf_surface(n, s) * INV_SPHERE_AREA,
-            None => 0.0,
-        }
+        let density = match (sphere::square_of(direction), self.stored) {
+            (None, _) => 0.0,
+            (Some(s), Some(stored)) => stored.pdf(s),
+            (Some(s), None) => self.plain.tree.pdf_surface(n, s),
+        };
+        density * INV_SPHERE_AREA
     }
 
     /// The cell's learned guide probability, as

@@ -7,7 +7,9 @@
 
 use crate::filter::hash_jitter;
 use crate::moments::weights;
-use crate::quadtree::{DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes};
+use crate::quadtree::{
+    DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes, tallies,
+};
 use crate::rule::mixture_value;
 use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
@@ -159,6 +161,14 @@ impl GuidingField {
                 (l.leaf, l.bounds.extent())
             }
         };
+        // One sample in eight tallies its normal (see `quadtree::surfaces`).
+        if let Some(n) = sample
+            .normal
+            .filter(|_| tallies(p, sample.direction))
+            .and_then(crate::sphere::normalize)
+        {
+            self.trees[home].surfaces.record(n);
+        }
         let mut value = sample.value;
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
@@ -303,7 +313,9 @@ impl GuidingField {
         self.recorded_before = self.recorded_before.saturating_add(recorded);
         self.rejected_before = self.rejected_before.plus(&self.rejected.take());
         self.directional_refused += outcomes.iter().map(|o| o.refused).sum::<u64>();
+        self.fit_surface_products();
 
+        let c = &self.config;
         let threshold = f64::from(c.spatial_threshold) * 2f64.powf(0.5 * f64::from(self.iteration));
         let budget = c.max_memory_bytes;
         let mut bytes = self.bytes();
@@ -320,6 +332,25 @@ impl GuidingField {
                     Some(trees.len() - 1)
                 });
         self.iteration += 1;
+    }
+
+    /// Drops stored surface products, the largest first, while the field's footprint exceeds
+    /// the memory budget: they only speed queries up (a query without one takes the per-query
+    /// product, the same distribution), so they give way before the guide does.
+    fn fit_surface_products(&mut self) {
+        let mut over = self.bytes().saturating_sub(self.config.max_memory_bytes);
+        if over == 0 {
+            return;
+        }
+        let mut order: Vec<usize> = (0..self.trees.len()).collect();
+        order.sort_by_key(|&i| std::cmp::Reverse(self.trees[i].surfaces.bytes()));
+        for i in order {
+            if over == 0 {
+                break;
+            }
+            let freed = self.trees[i].surfaces.drop_products() as u64;
+            over = over.saturating_sub(freed);
+        }
     }
 
     /// Size, depth and bookkeeping of the field.
@@ -342,6 +373,13 @@ impl GuidingField {
             s.directional_leaves += leaves as u64;
             s.directional_depth = s.directional_depth.max(depth);
             s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
+            s.surface_products += t.surfaces.products.len() as u64;
+            s.surface_product_nodes += t
+                .surfaces
+                .products
+                .iter()
+                .map(|p| p.node_count() as u64)
+                .sum::<u64>();
             s.continuations_recorded = s
                 .continuations_recorded
                 .saturating_add(t.continuations.recorded().count);

@@ -18,8 +18,10 @@
 //!                                                  moments ─► shrinkage ─► rule masses ─► sampling tree
 //!                                                  quadrant sums ─► split gains ─► new topology
 //!                                                  guide probability ─► one Newton step
+//!                                                  tallied normals ─► stored products with the cosine
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()
 //!                                                  distribution(x).at_surface(n) ─► the same, times the clamped cosine
+//!                                                    (stored for the cell's frequent normals, else weighed on the way down)
 //!
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)

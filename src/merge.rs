@@ -101,6 +101,9 @@ impl GuidingField {
             if a.continuations.estimate != b.continuations.estimate {
                 return differs(format!("the continuation estimates of tree {i} differ"));
             }
+            if a.surfaces.products != b.surfaces.products {
+                return differs(format!("the stored surface products of tree {i} differ"));
+            }
         }
         // Checked everything first: a refused merge leaves this field untouched.
         for (a, b) in self.trees.iter_mut().zip(&other.trees) {
@@ -125,6 +128,7 @@ impl GuidingField {
             }
             a.selection.add_sums(b.selection.sums());
             a.continuations.add_recorded(&b.continuations.recorded());
+            a.surfaces.add_tally(&b.surfaces);
         }
         self.rejected.add(&other.rejected.get());
         Ok(())

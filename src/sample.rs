@@ -44,6 +44,14 @@ pub struct Sample {
     /// What the guide-vs-BSDF selection learns from, when the direction was drawn from the
     /// one-sample mixture of BSDF sampling and guiding (see [`guide_probability`](crate::guide_probability)).
     pub mixture: Option<MixtureTerms>,
+    /// The shading normal at `position` (any length), the one the renderer passes to
+    /// [`at_surface`](crate::DirectionalDistribution::at_surface) there. Each spatial cell
+    /// tallies the normals recorded in it, and at [`refine`](crate::GuidingField::refine)
+    /// stores the product with the cosine for its most frequent ones, so that `at_surface` with
+    /// one of them costs about what the plain distribution costs (see
+    /// [`SurfaceDistribution`](crate::SurfaceDistribution)). `None`, or a zero or non-finite
+    /// normal: the sample is recorded without one.
+    pub normal: Option<Vec3>,
 }
 
 /// A sample's terms of the one-sample mixture `q = a·p_guide + (1 − a)·p_bsdf`.

@@ -86,6 +86,11 @@ pub struct FieldStats {
     pub directional_splits_refused: u64,
     /// Heap bytes held by the trees.
     pub bytes: u64,
+    /// Products with a surface's cosine stored for frequent normals, over all spatial leaves
+    /// (see [`Sample::normal`](crate::Sample::normal)).
+    pub surface_products: u64,
+    /// Nodes of those products.
+    pub surface_product_nodes: u64,
 }
 
 /// Lock-free rejection counters (bad input is rare, so they are not contended).

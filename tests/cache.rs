@@ -7,7 +7,7 @@ use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
     MergeError, Refinement, Sample,
 };
-use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds};
+use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_vertex};
 
 fn workload() -> Workload {
     Workload {
@@ -91,6 +91,15 @@ fn assert_same(a: &GuidingField, b: &GuidingField) {
         let (dir, pdf) = da.sample(u);
         assert_eq!((dir, pdf), db.sample(u));
         assert_eq!(pdf.to_bits(), db.pdf(dir).to_bits());
+        // At the room's surfaces, through the stored products where the cells have them.
+        let (x, n) = room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let (sa, sb) = (
+            a.distribution(x).at_surface(n),
+            b.distribution(x).at_surface(n),
+        );
+        let (dir, pdf) = sa.sample(u);
+        assert_eq!((dir, pdf), sb.sample(u));
+        assert_eq!(pdf.to_bits(), sb.pdf(dir).to_bits());
     }
     for (ca, cb) in a.cells().zip(b.cells()) {
         assert_eq!(ca.bounds, cb.bounds);
@@ -238,7 +247,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 4), &parts(&bytes)),
+        assemble((2, 5), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
@@ -258,6 +267,15 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
             .all(|c| older.continuation(c.bounds.center()) == ContinuationEstimate::default())
     );
     assert_eq!(older.to_bytes().len(), bytes.len());
+    // A 2.4 file, without the surface tallies: it loads, with no stored products (queries
+    // take the per-query product), and everything else as saved.
+    let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 7).collect();
+    let older = GuidingField::from_bytes(&assemble((2, 4), &without)).unwrap();
+    assert!(field.stats().surface_products > 0);
+    assert_eq!(older.stats().surface_products, 0);
+    for (a, b) in field.cells().zip(older.cells()) {
+        assert_eq!(a.distribution().leaves(), b.distribution().leaves());
+    }
     // A 2.7 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
@@ -276,7 +294,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 4)));
+            assert_eq!((found, supported), ((3, 0), (2, 5)));
         }
         other => panic!("{other:?}"),
     }
@@ -321,6 +339,23 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         forge(&bytes, 2, 4, 0u32.to_le_bytes()),
         "spatial",
         "points to",
+    );
+    // SURFACES: a slot with flags no version defines (tree 0's first slot, after the count
+    // and the tree's two words and the slot's normal and count).
+    corrupt(
+        forge(&bytes, 7, 4 + 8 + 16, 0xFFu32.to_le_bytes()),
+        "surfaces",
+        "flags",
+    );
+    // SURFACES: a normal that is not of unit length, in a held slot.
+    let mut p = parts(&bytes);
+    let body = &mut p.iter_mut().find(|s| s.0 == 7).unwrap().2;
+    body[4 + 8..4 + 8 + 4].copy_from_slice(&3.0f32.to_le_bytes());
+    body[4 + 8 + 16..4 + 8 + 20].copy_from_slice(&1u32.to_le_bytes());
+    corrupt(
+        GuidingField::from_bytes(&assemble((2, 0), &p)),
+        "surfaces",
+        "normal",
     );
     // DIRECTIONAL: a probability that is NaN.
     corrupt(
@@ -471,7 +506,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 4)));
+            assert_eq!((found, supported), ((1, 0), (2, 5)));
         }
         other => panic!("{other:?}"),
     }

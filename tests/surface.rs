@@ -133,3 +133,95 @@ fn bad_normals_get_the_documented_answer() {
     assert_eq!(unit.pdf(Vec3::ZERO), 0.0);
     assert_eq!(unit.pdf(Vec3::NAN), 0.0);
 }
+
+/// A field trained on the standard workload whose samples carry their surfaces' normals (or
+/// not, with `normals` false), otherwise on the same numbers.
+fn trained_with_normals(normals: bool) -> sdguide::GuidingField {
+    let mut field = sdguide::GuidingField::new(
+        sdguide_lab::synthetic::room_bounds(),
+        sdguide::GuidingConfig::default(),
+    )
+    .unwrap();
+    let workload = sdguide_lab::synthetic::Workload {
+        light: sdguide_lab::synthetic::LightField::standard(),
+        lobe_noise: 1.0,
+        seed: 13,
+        bsdf: None,
+    };
+    let mut rng = Rng::new(59);
+    for k in 0..4 {
+        let batch: Vec<_> = (0..(20_000u32 << k))
+            .map(|_| {
+                let s = workload.draw(&field, &mut rng);
+                sdguide::Sample {
+                    normal: s.normal.filter(|_| normals),
+                    ..s
+                }
+            })
+            .collect();
+        field.record_all(&batch);
+        field.refine();
+    }
+    field
+}
+
+#[test]
+fn recorded_normals_get_stored_products_of_the_same_distribution() {
+    // The room's floor and walls have one normal each: every cell that sees one of them in
+    // most of its samples stores its product, and that product is the per-query one (the
+    // field trained without normals, on the same samples, has the same guide).
+    let with = trained_with_normals(true);
+    let without = trained_with_normals(false);
+    let stats = with.stats();
+    assert!(
+        stats.surface_products >= stats.spatial_leaves / 2,
+        "{} products in {} cells",
+        stats.surface_products,
+        stats.spatial_leaves
+    );
+    assert_eq!(without.stats().surface_products, 0);
+    assert!(stats.bytes > without.stats().bytes);
+    let mut rng = Rng::new(61);
+    for _ in 0..20_000 {
+        let (x, n) =
+            sdguide_lab::synthetic::room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let (a, b) = (
+            with.distribution(x).at_surface(n),
+            without.distribution(x).at_surface(n),
+        );
+        let (d, pdf) = a.sample(rng.next_vec2());
+        assert!(pdf > 0.0, "{pdf}");
+        assert_eq!(pdf.to_bits(), a.pdf(d).to_bits());
+        for d in [d, sdguide::sphere::square_to_direction(rng.next_vec2())] {
+            let (p, q) = (a.pdf(d), b.pdf(d));
+            assert!(
+                (f64::from(p) - f64::from(q)).abs() <= 1e-4 * f64::from(q) + 1e-30,
+                "x = {x}, n = {n}, d = {d}: {p} vs {q}"
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_recorded_normals_are_ignored() {
+    // A sample whose normal is zero or not finite is recorded as one without a normal.
+    let field = trained(LeafRule::L2, 20, 1, 10_000);
+    let before = field.stats();
+    let good = sdguide::Sample {
+        position: Vec3::splat(0.5),
+        direction: Vec3::Z,
+        value: 1.0,
+        pdf: 0.5,
+        ..sdguide::Sample::default()
+    };
+    for bad in [Vec3::ZERO, Vec3::NAN, Vec3::new(0.0, f32::INFINITY, 1.0)] {
+        let s = sdguide::Sample {
+            normal: Some(bad),
+            ..good
+        };
+        assert_eq!(field.try_record(&s), Ok(()), "{bad}");
+    }
+    let after = field.stats();
+    assert_eq!(after.samples_recorded, before.samples_recorded + 3);
+    assert_eq!(after.rejected.total(), before.rejected.total());
+}

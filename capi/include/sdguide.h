@@ -238,6 +238,13 @@ typedef struct {
    The guide's pdf of the direction.
    */
   float guide_pdf;
+  /*
+   The shading normal at `position`, the one set with `sdg_distribution_set_normal` there
+   (see the Rust `Sample::normal`: a cell stores the product with the cosine for its most
+   frequent normals, which makes those queries about as cheap as plain ones). Zero or not
+   finite: none.
+   */
+  sdg_vec3 normal;
 } sdg_sample;
 
 /*

@@ -174,6 +174,11 @@ pub struct sdg_sample {
     pub bsdf_pdf: f32,
     /// The guide's pdf of the direction.
     pub guide_pdf: f32,
+    /// The shading normal at `position`, the one set with `sdg_distribution_set_normal` there
+    /// (see the Rust `Sample::normal`: a cell stores the product with the cosine for its most
+    /// frequent normals, which makes those queries about as cheap as plain ones). Zero or not
+    /// finite: none.
+    pub normal: sdg_vec3,
 }
 
 /// Splitting mode: Russian roulette only (factors up to 1).
@@ -533,6 +538,7 @@ fn record(field: &GuidingField, s: &sdg_sample) -> sdg_status {
         direction: s.direction.into(),
         value: s.value,
         pdf: s.pdf,
+        normal: Some(s.normal.into()),
         ..Sample::default()
     };
     if [s.integrand, s.bsdf_pdf, s.guide_pdf] != [0.0; 3] {

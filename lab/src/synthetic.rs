@@ -204,14 +204,23 @@ impl LightField {
 /// The standard scene of the benchmarks: the unit room `[0,1]³`, with points on the floor, the
 /// back wall, the left wall, and a sphere of radius 0.2 standing in the middle.
 pub fn room_point(u: [f32; 3]) -> Vec3 {
+    room_vertex(u).0
+}
+
+/// [`room_point`] with the surface's normal there (facing into the room, outward on the
+/// sphere).
+pub fn room_vertex(u: [f32; 3]) -> (Vec3, Vec3) {
     let [a, b, c] = u;
     let pick = (a * 4.0).min(3.999);
     let surface = pick as u32;
     match surface {
-        0 => Vec3::new(b, 0.0, c),
-        1 => Vec3::new(b, c, 0.0),
-        2 => Vec3::new(0.0, b, c),
-        _ => Vec3::new(0.5, 0.3, 0.5) + 0.2 * square_to_direction(Vec2::new(b, c)),
+        0 => (Vec3::new(b, 0.0, c), Vec3::Y),
+        1 => (Vec3::new(b, c, 0.0), Vec3::Z),
+        2 => (Vec3::new(0.0, b, c), Vec3::X),
+        _ => {
+            let n = square_to_direction(Vec2::new(b, c));
+            (Vec3::new(0.5, 0.3, 0.5) + 0.2 * n, n)
+        }
     }
 }
 
@@ -260,10 +269,11 @@ impl Workload {
         });
     }
 
-    /// One sample as a renderer would record it: a point, a direction from the ½–½ mixture of
-    /// uniform and guided sampling, the light's value and the mixture pdf.
+    /// One sample as a renderer would record it: a point and its surface's normal, a direction
+    /// from the ½–½ mixture of uniform and guided sampling, the light's value and the mixture
+    /// pdf.
     pub fn draw(&self, field: &GuidingField, rng: &mut Rng) -> Sample {
-        let x = room_point([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let (x, normal) = room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
         let dist = field.distribution(x);
         let a = match self.bsdf {
             Some(_) => dist.guide_probability(),
@@ -285,6 +295,7 @@ impl Workload {
             direction: d,
             value: v,
             pdf,
+            normal: Some(normal),
             ..Sample::default()
         };
         match self.bsdf {

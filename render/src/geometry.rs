@@ -165,6 +165,11 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// The frame's `z` axis.
+    pub fn normal(&self) -> Vec3 {
+        self.n
+    }
+
     /// The frame whose `z` axis is the unit vector `n`.
     pub fn new(n: Vec3) -> Self {
         let sign = 1.0f32.copysign(n.z);

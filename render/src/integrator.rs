@@ -550,7 +550,7 @@ impl Path<'_, '_> {
             let integrand = luminance(f * incident);
             record(
                 g.field,
-                hit.position,
+                (hit.position, sampler.frame.normal()),
                 &s,
                 luminance(incident),
                 integrand,
@@ -568,12 +568,13 @@ impl Path<'_, '_> {
     }
 }
 
-/// Records one vertex into the guide: the radiance `incident` (a luminance) arrived along the
-/// sampled direction `s`, `integrand` is `f·L_i` there, and `distance` is how far the direction
-/// reached (Open PGL's parallax compensation).
+/// Records one vertex into the guide: at the position, with the shading normal the guide was
+/// queried with there, the radiance `incident` (a luminance) arrived along the sampled
+/// direction `s`, `integrand` is `f·L_i` there, and `distance` is how far the direction reached
+/// (Open PGL's parallax compensation).
 fn record(
     guide: Guide<'_>,
-    position: Vec3,
+    (position, normal): (Vec3, Vec3),
     s: &DirectionSample,
     incident: f32,
     integrand: f32,
@@ -586,6 +587,7 @@ fn record(
                 direction: s.direction,
                 value: incident,
                 pdf: s.pdf.mixture,
+                normal: Some(normal),
                 ..Sample::default()
             }
             .with_mixture(integrand, s.pdf.bsdf, s.pdf.guide);

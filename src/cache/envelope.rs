@@ -40,6 +40,7 @@ pub(super) struct Sections<'a> {
     pub(super) directional: &'a [u8],
     pub(super) selection: Option<&'a [u8]>,
     pub(super) continuations: Option<&'a [u8]>,
+    pub(super) surfaces: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
 }
 
@@ -107,6 +108,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
     };
     let (mut meta, mut spatial, mut directional) = (None, None, None);
     let (mut selection, mut quadrants, mut continuations) = (None, None, None);
+    let mut surfaces = None;
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -128,6 +130,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_SELECTION => &mut selection,
             SECTION_QUADRANTS => &mut quadrants,
             SECTION_CONTINUATIONS => &mut continuations,
+            SECTION_SURFACES => &mut surfaces,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -151,5 +154,6 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         selection,
         quadrants,
         continuations,
+        surfaces,
     })
 }

@@ -1,6 +1,7 @@
-//! The optional `SELECTION`, `QUADRANTS` and `CONTINUATIONS` sections: each spatial leaf's
-//! guide-probability sums, each directional leaf's quadrant sums, and each spatial leaf's
-//! continuation moments. Files without them load (older minors).
+//! The optional `SELECTION`, `QUADRANTS`, `CONTINUATIONS` and `SURFACES` sections: each
+//! spatial leaf's guide-probability sums, each directional leaf's quadrant sums, each spatial
+//! leaf's continuation moments, and each spatial leaf's tally of normals. Files without them
+//! load (older minors).
 
 use super::*;
 
@@ -159,6 +160,82 @@ pub(super) fn decode_continuations(
             ));
         }
         t.continuations = ContinuationStats::from_parts(estimate, recorded);
+    }
+    Ok(())
+}
+
+/// Flag of a `SURFACES` slot: it holds a normal.
+const SLOT_HELD: u32 = 1;
+/// Flag of a `SURFACES` slot: its normal has a stored product.
+const SLOT_PRODUCT: u32 = 2;
+
+pub(super) fn encode_surfaces(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + SURFACES_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let tallied = t.surfaces.tallied();
+        out.u32(t.surfaces.others());
+        out.u32(0);
+        for k in 0..SLOTS {
+            match tallied.get(k) {
+                Some(s) => {
+                    out.vec3(s.normal);
+                    out.u32(s.count);
+                    out.u32(SLOT_HELD | if s.product { SLOT_PRODUCT } else { 0 });
+                }
+                None => {
+                    out.vec3(Vec3::ZERO);
+                    out.u32(0);
+                    out.u32(0);
+                }
+            }
+        }
+    }
+    out.0
+}
+
+/// Reads the optional surfaces section into `trees` (already decoded, sampling trees
+/// included): the tallies, and the products they ask for, rebuilt from the loaded guides.
+pub(super) fn decode_surfaces(
+    bytes: &[u8],
+    trees: &mut [DirectionalTree],
+) -> Result<(), CacheError> {
+    let section = "surfaces";
+    let mut r = In { bytes, section };
+    let n = r.count(SURFACES_LEN, "surface tallies")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            section,
+            format!("{n} surface tallies for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let others = r.u32()?;
+        r.u32()?;
+        let mut slots: Vec<Tallied> = Vec::with_capacity(SLOTS);
+        for k in 0..SLOTS {
+            let (normal, count, flags) = (r.vec3()?, r.u32()?, r.u32()?);
+            if flags & SLOT_HELD == 0 {
+                continue;
+            }
+            // A normal as `normalize` returns it: finite and of unit length to rounding, and
+            // not one an earlier slot holds.
+            let unit = normal.is_finite() && (normal.length() - 1.0).abs() <= 1e-5;
+            if !unit || flags > SLOT_HELD | SLOT_PRODUCT || slots.iter().any(|s| s.normal == normal)
+            {
+                return Err(corrupt(
+                    section,
+                    format!("tree {i}, slot {k}: normal {normal}, flags {flags}"),
+                ));
+            }
+            slots.push(Tallied {
+                normal,
+                count,
+                product: flags & SLOT_PRODUCT != 0,
+            });
+        }
+        let guide = &t.sampling;
+        t.surfaces.set(slots, others, guide);
     }
     Ok(())
 }

@@ -16,7 +16,9 @@ use crate::guide_probability::{
     GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
 };
 use crate::moments::{AtomicMoments, AtomicQuadrants};
-use crate::quadtree::{self, DirectionalTree, RecordingTree, SamplingNode, SamplingTree};
+use crate::quadtree::{
+    self, DirectionalTree, RecordingTree, SLOTS, SamplingNode, SamplingTree, Surfaces, Tallied,
+};
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
 use crate::stats::RejectCounters;
@@ -40,8 +42,8 @@ mod validate;
 use bytes::{In, Out};
 use envelope::{read_envelope, write_envelope};
 use leaf_sums::{
-    decode_continuations, decode_quadrants, decode_selection, encode_continuations,
-    encode_quadrants, encode_selection,
+    decode_continuations, decode_quadrants, decode_selection, decode_surfaces,
+    encode_continuations, encode_quadrants, encode_selection, encode_surfaces,
 };
 use meta::{decode_meta, encode_meta};
 use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
@@ -59,8 +61,10 @@ pub const FORMAT_MAJOR: u16 = 2;
 /// reader refuses files that use them — and 2.3 the optional `CONTINUATIONS` section (the
 /// moments [`splitting`](crate::splitting) learns from), which an older reader skips; 2.4
 /// appends [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) to `META`,
-/// which an older reader ignores (it learns up to its own bound).
-pub const FORMAT_MINOR: u16 = 4;
+/// which an older reader ignores (it learns up to its own bound); 2.5 adds the optional
+/// `SURFACES` section (each spatial cell's tally of recorded normals), which an older reader
+/// skips.
+pub const FORMAT_MINOR: u16 = 5;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -79,6 +83,10 @@ const QUADRANTS_LEN: usize = 64;
 /// (optional: a reader without it starts with no estimate).
 const SECTION_CONTINUATIONS: u32 = 6;
 const CONTINUATIONS_LEN: usize = 64;
+/// 2.5: each spatial leaf's tally of recorded normals, and which have stored products
+/// (optional: a reader without it starts with no tally, and queries take the per-query product).
+const SECTION_SURFACES: u32 = 7;
+const SURFACES_LEN: usize = 8 + 20 * SLOTS;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -222,6 +230,7 @@ impl GuidingField {
             (SECTION_SELECTION, 0, encode_selection(&self.trees)),
             (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
             (SECTION_CONTINUATIONS, 0, encode_continuations(&self.trees)),
+            (SECTION_SURFACES, 0, encode_surfaces(&self.trees)),
         ];
         write_envelope(&sections)
     }
@@ -259,6 +268,9 @@ impl GuidingField {
         }
         if let Some(bytes) = sections.continuations {
             decode_continuations(bytes, &mut field.trees)?;
+        }
+        if let Some(bytes) = sections.surfaces {
+            decode_surfaces(bytes, &mut field.trees)?;
         }
         field.prepare_recording();
         Ok(field)

@@ -55,7 +55,7 @@ pub(super) fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
     for t in trees {
         let s = t.sampling.nodes();
         out.u32(s.len() as u32);
-        for n in s.iter() {
+        for n in s {
             for p in n.px.iter().chain(n.py.iter().flatten()) {
                 out.f32(*p);
             }
@@ -202,5 +202,6 @@ pub(super) fn decode_tree(
         },
         selection: GuideSelection::default(),
         continuations: ContinuationStats::default(),
+        surfaces: Surfaces::default(),
     })
 }

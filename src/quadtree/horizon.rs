@@ -50,9 +50,14 @@
 //! random choice is a coin flip that a branch predictor misses half the time), and the level is
 //! computed inline in the descent. What is left is the chain itself: each level waits for the
 //! one above.
+//!
+//! **Stored.** For a normal a spatial cell sees often, [`SurfaceTree`] holds the same
+//! conditionals computed once, as a sampling tree descended like the plain guide's, to
+//! [`STORED_DEPTH`] inside the guide's leaves; the few draws that end where the product would
+//! still descend go on with the per-query descent from there.
 
-use super::sampling::{pick, place, unit};
-use super::{NO_CHILD, SamplingNode, SamplingTree, fixed, quadrant_bits};
+use super::sampling::{Descent, pick, place, unit};
+use super::{FIXED_BITS, NO_CHILD, RESUME, SamplingNode, SamplingTree, fixed, quadrant_bits};
 use crate::sphere::square_to_direction;
 use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::FRAC_PI_4;
@@ -305,6 +310,7 @@ impl Level {
 
 /// Where a descent stands: the guide's node (or none, inside one of its leaves), the cell and
 /// its depth, and whether the cosine has settled there.
+#[derive(Clone, Copy)]
 struct Cursor {
     node: Option<usize>,
     cell: [u32; 2],
@@ -322,11 +328,18 @@ impl Cursor {
         settled: false,
     };
 
+    /// The centre of the cursor's cell on the square.
+    #[inline]
+    fn centre(&self) -> Vec2 {
+        let size = f32::from_bits((127 - self.depth) << 23);
+        (Vec2::new(self.cell[0] as f32, self.cell[1] as f32) + 0.5) * size
+    }
+
     /// The level at the cursor's node.
     #[inline(always)]
     fn level(&self, tree: &SamplingTree, n: Vec3) -> Level {
         let guide = match self.node {
-            Some(i) => &tree.nodes()[i],
+            Some(i) => tree.node(i),
             None => &SamplingNode::UNIFORM,
         };
         if self.settled {
@@ -351,7 +364,7 @@ impl Cursor {
         self.settled |= lo > 0.0 && hi <= SETTLED * lo;
         self.node = self
             .node
-            .map(|i| tree.nodes()[i].child[q])
+            .map(|i| tree.node(i).child[q])
             .filter(|&c| c != NO_CHILD)
             .map(usize::from);
         self.node.is_some() || level.descend_inside(q, self.depth)
@@ -367,15 +380,42 @@ fn choose(a: f32, b: f32, u: f32, cut: f32) -> usize {
     usize::from((u >= cut) & (b != 0.0) | (a == 0.0))
 }
 
+/// Where the product's descent stands while sampling: the interval `[a, a + w)` of `u` that
+/// leads to the cursor's cell, and the density so far.
+struct Draw {
+    a: Vec2,
+    w: Vec2,
+    pdf: f32,
+}
+
 impl SamplingTree {
     /// [`sample`](SamplingTree::sample) of the product with the clamped cosine about the unit
     /// normal `n`: the point, its density on the square, whether it may lie within rounding
     /// distance of its cell's border, and the centre of its cell.
     pub(crate) fn sample_surface(&self, n: Vec3, u: Vec2) -> (Vec2, f32, bool, Vec2) {
         let u = Vec2::new(unit(u.x), unit(u.y));
-        let (mut a, mut w) = (Vec2::ZERO, Vec2::ONE);
-        let mut pdf = 1.0;
-        let mut at = Cursor::ROOT;
+        let start = Draw {
+            a: Vec2::ZERO,
+            w: Vec2::ONE,
+            pdf: 1.0,
+        };
+        self.sample_surface_from(n, u, start, Cursor::ROOT)
+    }
+
+    /// The product's descent of `sample_surface` from the cursor `at` on, for `u` in `[0,1)²`.
+    #[inline(always)]
+    fn sample_surface_from(
+        &self,
+        n: Vec3,
+        u: Vec2,
+        draw: Draw,
+        mut at: Cursor,
+    ) -> (Vec2, f32, bool, Vec2) {
+        let Draw {
+            mut a,
+            mut w,
+            mut pdf,
+        } = draw;
         loop {
             let level = at.level(self, n);
             let m = level.w;
@@ -405,9 +445,13 @@ impl SamplingTree {
     /// [`pdf`](SamplingTree::pdf) of the product with the clamped cosine about the unit
     /// normal `n`, at `s ∈ [0,1)²`.
     pub(crate) fn pdf_surface(&self, n: Vec3, s: Vec2) -> f32 {
-        let p = fixed(s);
-        let mut pdf = 1.0;
-        let mut at = Cursor::ROOT;
+        self.pdf_surface_from(n, fixed(s), 1.0, Cursor::ROOT)
+    }
+
+    /// The product's density at the fixed-point point `p`, from the cursor `at` (reached with
+    /// density `pdf`) on.
+    #[inline(always)]
+    fn pdf_surface_from(&self, n: Vec3, p: [u32; 2], mut pdf: f32, mut at: Cursor) -> f32 {
         loop {
             let level = at.level(self, n);
             let (ix, iy) = quadrant_bits(p, at.depth + 1);
@@ -416,6 +460,131 @@ impl SamplingTree {
                 return pdf;
             }
         }
+    }
+}
+
+/// How deep a [`SurfaceTree`] holds the product inside the guide's leaves. Below, a cell the
+/// product would still descend (the horizon crosses it, or the cosine varies over it by more
+/// than a factor of three: a few percent of the draws) is a [`RESUME`] leaf, and the query goes
+/// on there per query. Deeper would hold more of those descents but cost memory: the cells the
+/// horizon crosses double with every level.
+pub(crate) const STORED_DEPTH: u32 = 5;
+
+/// The product with the clamped cosine about one normal, computed once for a spatial leaf's
+/// guide and stored as a sampling tree of its own: the nodes of the guide's tree and of the
+/// cells the product descends inside its leaves down to [`STORED_DEPTH`], each with the
+/// product's conditionals (the weights of [`Level`] over their total). A query with that normal
+/// descends it as the plain guide is descended; where it ends on a [`RESUME`] leaf it goes on
+/// with the per-query product from there. The density is the product of the conditionals
+/// chosen, as for the per-query product, so `sample` and `pdf` agree exactly; and the
+/// conditionals are the per-query product's to `f32` rounding, so it is the same distribution.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct SurfaceTree {
+    /// The unit normal (as [`crate::sphere::normalize`] returns it).
+    pub(crate) normal: Vec3,
+    tree: SamplingTree,
+}
+
+/// At most this many nodes in a [`SurfaceTree`]; a guide too large for it gets none (the
+/// per-query product serves its queries).
+const MAX_SURFACE_NODES: usize = RESUME as usize;
+
+impl SurfaceTree {
+    /// The product of `guide` with the clamped cosine about the unit normal `n`; `None` if it
+    /// would exceed the node limit.
+    pub(crate) fn build(guide: &SamplingTree, n: Vec3) -> Option<Self> {
+        let mut nodes = vec![SamplingNode::UNIFORM];
+        let mut open = vec![(0usize, Cursor::ROOT)];
+        while let Some((i, at)) = open.pop() {
+            let level = at.level(guide, n);
+            let mut child = [NO_CHILD; 4];
+            for (q, slot) in child.iter_mut().enumerate() {
+                let mut next = Cursor { ..at };
+                if !next.enter(guide, &level, q & 1, q >> 1) {
+                    continue;
+                }
+                if next.node.is_none() && !next.settled && next.depth >= STORED_DEPTH {
+                    *slot = RESUME;
+                    continue;
+                }
+                if nodes.len() >= MAX_SURFACE_NODES {
+                    return None;
+                }
+                *slot = nodes.len() as u16;
+                nodes.push(SamplingNode::UNIFORM);
+                open.push((nodes.len() - 1, next));
+            }
+            nodes[i] = SamplingNode::from_masses(level.w.map(f64::from), child);
+        }
+        Some(Self {
+            normal: n,
+            tree: SamplingTree::new(nodes.into_boxed_slice()),
+        })
+    }
+
+    /// [`SamplingTree::sample_surface`] for this normal, through the stored product.
+    #[inline]
+    pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, bool, Vec2) {
+        let u = Vec2::new(unit(u.x), unit(u.y));
+        let d = self.tree.descend::<true>(u);
+        let at = Cursor {
+            node: None,
+            cell: d.cell,
+            depth: d.depth,
+            settled: false,
+        };
+        if d.resume {
+            return self.sample_resumed(u, d, at);
+        }
+        let (point, near_border) = place(u, d.a, d.w, d.cell, d.depth);
+        (point, d.pdf, near_border, at.centre())
+    }
+
+    /// The rest of a draw that reached a [`RESUME`] leaf: the per-query product below it.
+    /// (Inside the guide's leaf, so the guide's tree is not read.)
+    #[cold]
+    #[inline(never)]
+    fn sample_resumed(&self, u: Vec2, d: Descent, at: Cursor) -> (Vec2, f32, bool, Vec2) {
+        let draw = Draw {
+            a: d.a,
+            w: d.w,
+            pdf: d.pdf,
+        };
+        self.tree.sample_surface_from(self.normal, u, draw, at)
+    }
+
+    /// [`SamplingTree::pdf_surface`] for this normal, through the stored product.
+    #[inline]
+    pub(crate) fn pdf(&self, s: Vec2) -> f32 {
+        let p = fixed(s);
+        let (pdf, depth, resume) = self.tree.pdf_descend::<true>(p);
+        if resume && pdf > 0.0 {
+            return self.pdf_resumed(p, pdf, depth);
+        }
+        pdf
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn pdf_resumed(&self, p: [u32; 2], pdf: f32, depth: u32) -> f32 {
+        let shift = FIXED_BITS - depth;
+        let at = Cursor {
+            node: None,
+            cell: [p[0] >> shift, p[1] >> shift],
+            depth,
+            settled: false,
+        };
+        self.tree.pdf_surface_from(self.normal, p, pdf, at)
+    }
+
+    /// The nodes stored.
+    pub(crate) fn node_count(&self) -> usize {
+        self.tree.node_count()
+    }
+
+    /// Bytes held.
+    pub(crate) fn bytes(&self) -> usize {
+        self.tree.bytes()
     }
 }
 
@@ -658,63 +827,147 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_product_samples_its_cells_chi_square() {
+    /// Chi-square test of `draw` (a sampler of the square) against the probabilities of the
+    /// product's final cells of `tree` and `n`.
+    fn assert_samples_the_product(tree: &SamplingTree, n: Vec3, mut draw: impl FnMut() -> Vec2) {
         // Bins: the 32 × 32 grid; each final cell's probability goes to the bins it covers
         // (in equal shares: the density is constant on it).
         let (bins, draws) = (32u32, 1_000_000u64);
-        let mut next = uniform(17);
-        let tree = random_sampling_tree(2);
-        for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
-            let mut expected = vec![0.0f64; (bins * bins) as usize];
-            for FinalCell { cell, depth, p, .. } in final_cells(&tree, n) {
-                if depth >= 5 {
-                    let shift = depth - 5;
-                    expected[((cell[1] >> shift) * bins + (cell[0] >> shift)) as usize] += p;
-                } else {
-                    let k = 1u32 << (5 - depth);
-                    let share = p / f64::from(k * k);
-                    for j in 0..k {
-                        for i in 0..k {
-                            let (bx, by) = (cell[0] * k + i, cell[1] * k + j);
-                            expected[(by * bins + bx) as usize] += share;
-                        }
+        let mut expected = vec![0.0f64; (bins * bins) as usize];
+        for FinalCell { cell, depth, p, .. } in final_cells(tree, n) {
+            if depth >= 5 {
+                let shift = depth - 5;
+                expected[((cell[1] >> shift) * bins + (cell[0] >> shift)) as usize] += p;
+            } else {
+                let k = 1u32 << (5 - depth);
+                let share = p / f64::from(k * k);
+                for j in 0..k {
+                    for i in 0..k {
+                        let (bx, by) = (cell[0] * k + i, cell[1] * k + j);
+                        expected[(by * bins + bx) as usize] += share;
                     }
                 }
             }
-            let mut observed = vec![0u64; expected.len()];
-            for _ in 0..draws {
-                let (s, _, _, _) = tree.sample_surface(n, Vec2::new(next() as f32, next() as f32));
-                let (i, j) = ((s.x * bins as f32) as u32, (s.y * bins as f32) as u32);
-                observed[(j * bins + i) as usize] += 1;
+        }
+        let mut observed = vec![0u64; expected.len()];
+        for _ in 0..draws {
+            let s = draw();
+            let (i, j) = ((s.x * bins as f32) as u32, (s.y * bins as f32) as u32);
+            observed[(j * bins + i) as usize] += 1;
+        }
+        // Pool the bins expecting fewer than 5 draws, as the chi-square approximation asks.
+        let (mut chi2, mut dof, mut pooled) = (0.0, 0usize, (0.0, 0.0));
+        for (&o, &p) in observed.iter().zip(&expected) {
+            let e = p * draws as f64;
+            if e < 5.0 {
+                pooled = (pooled.0 + o as f64, pooled.1 + e);
+            } else {
+                chi2 += (o as f64 - e).powi(2) / e;
+                dof += 1;
             }
-            // Pool the bins expecting fewer than 5 draws, as the chi-square approximation asks.
-            let (mut chi2, mut dof, mut pooled) = (0.0, 0usize, (0.0, 0.0));
-            for (&o, &p) in observed.iter().zip(&expected) {
-                let e = p * draws as f64;
-                if e < 5.0 {
-                    pooled = (pooled.0 + o as f64, pooled.1 + e);
-                } else {
-                    chi2 += (o as f64 - e).powi(2) / e;
-                    dof += 1;
+        }
+        if pooled.1 >= 5.0 {
+            chi2 += (pooled.0 - pooled.1).powi(2) / pooled.1;
+            dof += 1;
+        } else {
+            // A Poisson count of mean below 5 exceeds 20 with probability below 1e-6.
+            assert!(pooled.0 <= 20.0, "{pooled:?}");
+        }
+        assert!(dof > 150, "{dof} bins");
+        // Wilson–Hilferty: exceeded with probability ~1e-6 by a correct sampler.
+        let k = (dof - 1) as f64;
+        let a = 2.0 / (9.0 * k);
+        let bound = k * (1.0 - a + 4.75 * a.sqrt()).powi(3);
+        assert!(
+            chi2 < bound,
+            "n = {n}: chi2 = {chi2}, bound = {bound}, {dof} bins"
+        );
+    }
+
+    #[test]
+    fn the_product_samples_its_cells_chi_square() {
+        let mut next = uniform(17);
+        let tree = random_sampling_tree(2);
+        for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
+            assert_samples_the_product(&tree, n, || {
+                tree.sample_surface(n, Vec2::new(next() as f32, next() as f32))
+                    .0
+            });
+        }
+    }
+
+    #[test]
+    fn the_stored_product_samples_the_products_cells_chi_square() {
+        let mut next = uniform(19);
+        let tree = random_sampling_tree(2);
+        for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
+            let stored = SurfaceTree::build(&tree, n).unwrap();
+            assert_samples_the_product(&tree, n, || {
+                stored.sample(Vec2::new(next() as f32, next() as f32)).0
+            });
+        }
+    }
+
+    #[test]
+    fn the_stored_product_is_the_per_query_product() {
+        // At the centre of every final cell of the per-query product, the stored product has
+        // the same density to f32 rounding (a few 10⁻⁷ per level, 16 levels at most), so it
+        // integrates to 1 and is positive wherever the cosine is; and some of those cells are
+        // reached through resumed descents.
+        let mut next = uniform(31);
+        let mut resumed = 0;
+        for seed in 1..=3 {
+            let tree = random_sampling_tree(seed);
+            for n in normals(&mut next) {
+                let stored = SurfaceTree::build(&tree, n).unwrap();
+                resumed += stored
+                    .tree
+                    .nodes()
+                    .iter()
+                    .flat_map(|node| node.child)
+                    .filter(|&c| c == RESUME)
+                    .count();
+                let cells = final_cells(&tree, n);
+                let total: f64 = cells
+                    .iter()
+                    .map(|c| {
+                        let size = 0.5f64.powi(c.depth as i32);
+                        f64::from(stored.pdf(c.centre())) * size * size
+                    })
+                    .sum();
+                assert!((total - 1.0).abs() < 1e-4, "seed {seed}, n = {n}: {total}");
+                for c in &cells {
+                    let (ours, theirs) = (stored.pdf(c.centre()), tree.pdf_surface(n, c.centre()));
+                    assert!(
+                        (f64::from(ours) - f64::from(theirs)).abs()
+                            <= 1e-4 * f64::from(theirs) + 1e-38,
+                        "seed {seed}, n = {n}, {:?} at {}: {ours} vs {theirs}",
+                        c.cell,
+                        c.depth
+                    );
                 }
             }
-            if pooled.1 >= 5.0 {
-                chi2 += (pooled.0 - pooled.1).powi(2) / pooled.1;
-                dof += 1;
-            } else {
-                // A Poisson count of mean below 5 exceeds 20 with probability below 1e-6.
-                assert!(pooled.0 <= 20.0, "{pooled:?}");
+        }
+        assert!(resumed > 100, "{resumed} resumed leaves");
+    }
+
+    #[test]
+    fn stored_sample_returns_the_pdf_of_its_point() {
+        let mut next = uniform(37);
+        for seed in 1..=4 {
+            let tree = random_sampling_tree(seed);
+            for _ in 0..10 {
+                let n = random_normal(&mut next);
+                let stored = SurfaceTree::build(&tree, n).unwrap();
+                for _ in 0..2000 {
+                    let u = Vec2::new(next() as f32, next() as f32);
+                    let (s, pdf, near, _) = stored.sample(u);
+                    assert!(pdf > 0.0 && pdf.is_finite(), "pdf {pdf}");
+                    if !near {
+                        assert_eq!(stored.pdf(s).to_bits(), pdf.to_bits(), "u = {u}");
+                    }
+                }
             }
-            assert!(dof > 150, "{dof} bins");
-            // Wilson–Hilferty: exceeded with probability ~1e-6 by a correct sampler.
-            let k = (dof - 1) as f64;
-            let a = 2.0 / (9.0 * k);
-            let bound = k * (1.0 - a + 4.75 * a.sqrt()).powi(3);
-            assert!(
-                chi2 < bound,
-                "n = {n}: chi2 = {chi2}, bound = {bound}, {dof} bins"
-            );
         }
     }
 

@@ -27,11 +27,13 @@ mod recording;
 mod refine;
 mod sampling;
 mod splat;
+mod surfaces;
 
-pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH};
+pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineOutcome, RefineParams};
 pub(crate) use sampling::{SamplingNode, SamplingTree};
+pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, tallies};
 
 use crate::guide_probability::GuideSelection;
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
@@ -46,6 +48,10 @@ pub(crate) const LEAF_BIT: u32 = 1 << 31;
 
 /// In a [`SamplingTree`] node, the child index of a leaf (the root is node 0, nobody's child).
 pub(crate) const NO_CHILD: u16 = 0;
+
+/// In a surface product's [`SamplingTree`], the child index of a leaf below which the product
+/// goes on per query (see [`horizon`]). No node has it: indices stay below [`MAX_NODES`].
+pub(crate) const RESUME: u16 = u16::MAX;
 
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
@@ -172,9 +178,15 @@ impl DirectionalCell {
 }
 
 /// A spatial leaf's directional knowledge: what queries sample, and what recording fills.
+///
+/// Laid out for the query: the sampling tree's two pointers and the first 32 bytes of
+/// `surfaces` (which normals have stored products, and where they are) share the first cache
+/// line.
 #[derive(Clone, Debug)]
+#[repr(C, align(64))]
 pub(crate) struct DirectionalTree {
     pub(crate) sampling: SamplingTree,
+    pub(crate) surfaces: Surfaces,
     pub(crate) recording: RecordingTree,
     /// The spatial leaf's learned guide-vs-BSDF selection probability.
     pub(crate) selection: GuideSelection,
@@ -186,6 +198,7 @@ impl Default for DirectionalTree {
     fn default() -> Self {
         Self {
             sampling: SamplingTree::uniform(),
+            surfaces: Surfaces::default(),
             recording: RecordingTree::root(),
             selection: GuideSelection::default(),
             continuations: ContinuationStats::default(),
@@ -194,9 +207,9 @@ impl Default for DirectionalTree {
 }
 
 impl DirectionalTree {
-    /// Bytes held by both buffers.
+    /// Bytes held by both buffers and the stored surface products.
     pub(crate) fn bytes(&self) -> usize {
-        self.sampling.bytes() + self.recording.bytes()
+        self.sampling.bytes() + self.recording.bytes() + self.surfaces.bytes()
     }
 }
 
@@ -276,5 +289,16 @@ mod tests {
         assert_eq!(bytes_per_node(false), 336);
         assert_eq!(leaf_bytes(true), 24 + 64 + 64);
         assert_eq!(bytes_per_node(true), 528);
+    }
+
+    #[test]
+    fn what_a_query_reads_shares_one_cache_line() {
+        // The sampling tree's pointers, the product keys and the products' pointer.
+        assert_eq!(std::mem::offset_of!(DirectionalTree, surfaces), 32);
+        assert_eq!(std::mem::align_of::<DirectionalTree>(), 64);
+        let s = Surfaces::default();
+        let base = std::ptr::from_ref(&s) as usize;
+        let end = std::ptr::from_ref(&s.products) as usize + size_of::<Box<[SurfaceTree]>>();
+        assert_eq!(end - base, 32);
     }
 }

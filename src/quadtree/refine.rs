@@ -251,6 +251,7 @@ impl DirectionalTree {
         let (recording, refused) = self.refined_topology(&keys, params);
         self.sampling = sampling;
         self.recording = recording;
+        self.surfaces.refine(&self.sampling);
         RefineOutcome { samples, refused }
     }
 

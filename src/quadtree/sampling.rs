@@ -3,7 +3,7 @@
 //! the way down) and turned, once per build, into the absolute cuts of `u` that `sample`
 //! compares against.
 
-use super::{DirectionalCell, NO_CHILD, fixed, quadrant_bits};
+use super::{DirectionalCell, NO_CHILD, RESUME, fixed, quadrant_bits};
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use glam::{Vec2, Vec4};
 
@@ -41,13 +41,21 @@ impl SamplingNode {
         )
     }
 
-    /// The node for quadrant masses `m` (all positive).
+    /// The node for quadrant masses `m` (non-negative, with a positive total). A column of
+    /// zero mass gets even conditionals within it; the descent never enters it (see
+    /// [`SamplingTree::new`]).
     pub(super) fn from_masses(m: [f64; 4], child: [u16; 4]) -> Self {
         let col = [m[0] + m[2], m[1] + m[3]];
         let total = col[0] + col[1];
         Self {
             px: col.map(|c| (c / total) as f32),
-            py: [0, 1].map(|ix| [(m[ix] / col[ix]) as f32, (m[ix + 2] / col[ix]) as f32]),
+            py: [0, 1].map(|ix| {
+                if col[ix] > 0.0 {
+                    [(m[ix] / col[ix]) as f32, (m[ix + 2] / col[ix]) as f32]
+                } else {
+                    [0.5; 2]
+                }
+            }),
             child,
         }
     }
@@ -109,6 +117,19 @@ pub(crate) struct Cuts {
     child: u64,
 }
 
+/// Where a descent of [`SamplingTree::sample`] ended: the interval `[a, a + w)` of `u` that
+/// leads to the leaf, the leaf's cell and depth, the density, and whether the leaf is a
+/// [`RESUME`] child.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Descent {
+    pub(super) a: Vec2,
+    pub(super) w: Vec2,
+    pub(super) cell: [u32; 2],
+    pub(super) depth: u32,
+    pub(super) pdf: f32,
+    pub(super) resume: bool,
+}
+
 /// The read-only, piecewise-constant density on the square that queries use.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct SamplingTree {
@@ -136,9 +157,14 @@ impl SamplingTree {
             let (a, w) = interval[i];
             let left = w.x * n.px[0];
             let low = [w.y * n.py[0][0], w.y * n.py[1][0]];
+            // A part of probability zero is never taken: `u ≥ a` holds exactly along the
+            // descent, so a zero left or lower part (cut at `a`) loses every comparison, and a
+            // zero right or upper part gets a cut no `u` reaches (rounding of `a + w` could
+            // otherwise let `u` past it). Only the surface products have such parts.
+            let cut = |at: f32, upper: f32| if upper > 0.0 { at } else { f32::INFINITY };
             cuts.push(Cuts {
-                x: a.x + left,
-                y: [a.y + low[0], a.y + low[1]],
+                x: cut(a.x + left, n.px[1]),
+                y: [cut(a.y + low[0], n.py[0][1]), cut(a.y + low[1], n.py[1][1])],
                 child: n
                     .child
                     .iter()
@@ -167,6 +193,12 @@ impl SamplingTree {
         &self.nodes
     }
 
+    /// Node `i`.
+    #[inline(always)]
+    pub(crate) fn node(&self, i: usize) -> &SamplingNode {
+        &self.nodes[i]
+    }
+
     /// Draws a point from `u ∈ [0,1)²`: returns the point, its density on the square, and
     /// whether the point may lie within rounding distance of its leaf's border.
     ///
@@ -177,12 +209,23 @@ impl SamplingTree {
     #[inline]
     pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, bool) {
         let u = Vec2::new(unit(u.x), unit(u.y));
+        let d = self.descend::<false>(u);
+        let (point, near_border) = place(u, d.a, d.w, d.cell, d.depth);
+        (point, d.pdf, near_border)
+    }
+
+    /// The descent of [`sample`](Self::sample) from the root to a leaf, for `u` already in
+    /// `[0,1)²`. With `RESUMABLE` it also stops at a [`RESUME`] child (a surface product's
+    /// leaf below which the product goes on per query) and says so; without, the check is
+    /// compiled out of the plain descent.
+    #[inline(always)]
+    pub(super) fn descend<const RESUMABLE: bool>(&self, u: Vec2) -> Descent {
         let (mut a, mut w) = (Vec2::ZERO, Vec2::ONE);
         let mut cell = [0u32; 2];
         let mut depth = 0;
         let mut pdf = 1.0;
         let mut node = 0usize;
-        loop {
+        let resume = loop {
             // The chain from one level to the next: load the cuts (with the children), compare,
             // shift out the child.
             // Branch-free: with random `u` each choice is a coin flip no predictor can learn, so
@@ -202,27 +245,41 @@ impl SamplingTree {
             cell = [2 * cell[0] + ix as u32, 2 * cell[1] + iy as u32];
             depth += 1;
             match (c.child >> (16 * (ix | iy << 1))) as u16 {
-                NO_CHILD => break,
+                NO_CHILD => break false,
+                RESUME if RESUMABLE => break true,
                 c => node = usize::from(c),
             }
+        };
+        Descent {
+            a,
+            w,
+            cell,
+            depth,
+            pdf,
+            resume,
         }
-        let (point, near_border) = place(u, a, w, cell, depth);
-        (point, pdf, near_border)
     }
 
     /// The density on the square at `s ∈ [0,1)²`.
     #[inline]
     pub(crate) fn pdf(&self, s: Vec2) -> f32 {
-        let p = fixed(s);
+        self.pdf_descend::<false>(fixed(s)).0
+    }
+
+    /// The descent of [`pdf`](Self::pdf) at the fixed-point point `p`: the density, the leaf's
+    /// depth, and (with `RESUMABLE`) whether the leaf is a [`RESUME`] child.
+    #[inline(always)]
+    pub(super) fn pdf_descend<const RESUMABLE: bool>(&self, p: [u32; 2]) -> (f32, u32, bool) {
         let mut pdf = 1.0;
         let mut node = 0usize;
         let mut depth = 1;
         loop {
-            let n = &self.nodes[node];
+            let n = self.node(node);
             let (ix, iy) = quadrant_bits(p, depth);
             pdf *= n.density_factor(ix, iy);
             match n.child[ix | iy << 1] {
-                NO_CHILD => return pdf,
+                NO_CHILD => return (pdf, depth, false),
+                RESUME if RESUMABLE => return (pdf, depth, true),
                 c => node = usize::from(c),
             }
             depth += 1;
@@ -234,7 +291,7 @@ impl SamplingTree {
         let mut out = Vec::new();
         let mut stack = vec![(0usize, DirectionalCell::ROOT, 1.0f32)];
         while let Some((node, cell, mass)) = stack.pop() {
-            let n = &self.nodes[node];
+            let n = self.node(node);
             for q in 0..4 {
                 let m = mass * n.px[q & 1] * n.py[q & 1][q >> 1];
                 match n.child[q] {
@@ -252,7 +309,7 @@ impl SamplingTree {
         let (mut count, mut deepest) = (0, 0);
         let mut stack = vec![(0usize, 0u32)];
         while let Some((node, depth)) = stack.pop() {
-            for &child in &self.nodes[node].child {
+            for &child in &self.node(node).child {
                 match child {
                     NO_CHILD => {
                         count += 1;
@@ -303,7 +360,7 @@ mod tests {
             let (mut a, mut w) = (Vec2::ZERO, Vec2::ONE);
             let (mut cell, mut depth, mut pdf, mut node) = ([0u32; 2], 0, 1.0, 0usize);
             loop {
-                let n = &t.nodes[node];
+                let n = t.node(node);
                 let left = w.x * n.px[0];
                 let ix = usize::from(u.x >= a.x + left);
                 let low = w.y * n.py[ix][0];
@@ -352,6 +409,30 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn parts_of_probability_zero_are_never_drawn() {
+        // A root whose right column and whose lower-left cell have mass zero: every draw lands
+        // in the upper-left quadrant, even for `u` at the top of the range, where rounding
+        // of the interval's end could otherwise pass a cut.
+        let tree = SamplingTree::new(Box::new([SamplingNode::from_masses(
+            [0.0, 0.0, 3.0, 0.0],
+            [NO_CHILD; 4],
+        )]));
+        let mut next = uniform(5);
+        let edges = [0.0, 0.5, ONE_MINUS_EPSILON, 1.0];
+        for k in 0..10_000 {
+            let u = if k < 16 {
+                Vec2::new(edges[k % 4], edges[k / 4])
+            } else {
+                Vec2::new(next() as f32, next() as f32)
+            };
+            let (s, pdf, _) = tree.sample(u);
+            assert!(s.x < 0.5 && s.y >= 0.5, "u = {u}: {s}");
+            assert_eq!(pdf, 4.0);
+        }
+        assert_eq!(tree.pdf(Vec2::new(0.7, 0.2)), 0.0);
     }
 
     #[test]
