@@ -97,7 +97,10 @@ static void *record(void *arg) {
             }
             sdg_distribution_destroy(dist);
             float f = light(d); /* the integrand: light times a constant BSDF */
-            sdg_sample s = {x, d, light(d), a * guide_pdf + (1.0f - a) * bsdf_pdf, f, bsdf_pdf, guide_pdf};
+            /* The points lie on no surface: a zero normal (a renderer passes its shading normal). */
+            sdg_vec3 no_normal = {0.0f, 0.0f, 0.0f};
+            sdg_sample s = {x, d, light(d), a * guide_pdf + (1.0f - a) * bsdf_pdf, f, bsdf_pdf, guide_pdf,
+                            no_normal};
             batch[i] = s;
         }
         CHECK(sdg_field_record_batch(j->field, batch, BATCH) == SDG_STATUS_OK, "record");

@@ -2,7 +2,7 @@
 //! samples, and for the few most frequent ones the guide's product with the clamped cosine,
 //! stored ([`SurfaceTree`]).
 //!
-//! A query's product with the cosine costs a chain of per-level cosine estimates (2.5× the
+//! A query's product with the cosine costs a chain of per-level cosine estimates (about 3× the
 //! plain query in the benches). But most vertices lie on planar geometry, where every vertex
 //! of a wall or a floor in a spatial leaf has the same shading normal, bit for bit: for such a
 //! normal the product can be computed once per iteration, at `refine`, and a query with it
@@ -13,7 +13,7 @@
 //! [`TALLY_EVERY`] (by a hash of its position and direction) has its normal tallied: it adds to
 //! the slot holding it, or claims an empty one (by compare-and-swap of a hash of its
 //! bits), or, when all are taken, counts among the others; lock-free, a few atomic operations
-//! per sample. At `refine` a normal with at least [`MIN_SHARE`] of the leaf's normals and
+//! per tallied sample. At `refine` a normal with at least [`MIN_SHARE`] of the leaf's normals and
 //! [`MIN_COUNT`] of them gets a product, and keeps its slot for the next iteration (its count
 //! restarts); the other slots are freed. So slots taken by one-off normals of a curved surface
 //! free up every iteration, and a wall's normal, seen in most samples, soon holds one.
