@@ -374,12 +374,7 @@ impl GuidingField {
             s.directional_depth = s.directional_depth.max(depth);
             s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
             s.surface_products += t.surfaces.products.len() as u64;
-            s.surface_product_nodes += t
-                .surfaces
-                .products
-                .iter()
-                .map(|p| p.node_count() as u64)
-                .sum::<u64>();
+            s.surface_product_nodes += t.surfaces.node_count() as u64;
             s.continuations_recorded = s
                 .continuations_recorded
                 .saturating_add(t.continuations.recorded().count);

@@ -234,8 +234,7 @@ pub(super) fn decode_surfaces(
                 product: flags & SLOT_PRODUCT != 0,
             });
         }
-        let guide = &t.sampling;
-        t.surfaces.set(slots, others, guide);
+        t.surfaces.set(slots, others, &t.sampling);
     }
     Ok(())
 }

@@ -328,6 +328,18 @@ impl Cursor {
         settled: false,
     };
 
+    /// The cursor at `cell` of `depth` inside one of the guide's leaves, where the cosine has
+    /// not settled: where a stored product's descent resumes per query.
+    #[inline]
+    fn inside(cell: [u32; 2], depth: u32) -> Cursor {
+        Cursor {
+            node: None,
+            cell,
+            depth,
+            settled: false,
+        }
+    }
+
     /// The centre of the cursor's cell on the square.
     #[inline]
     fn centre(&self) -> Vec2 {
@@ -437,9 +449,7 @@ impl SamplingTree {
             }
         }
         let (point, near_border) = place(u, a, w, at.cell, at.depth);
-        let size = f32::from_bits((127 - at.depth) << 23);
-        let centre = (Vec2::new(at.cell[0] as f32, at.cell[1] as f32) + 0.5) * size;
-        (point, pdf, near_border, centre)
+        (point, pdf, near_border, at.centre())
     }
 
     /// [`pdf`](SamplingTree::pdf) of the product with the clamped cosine about the unit
@@ -499,7 +509,7 @@ impl SurfaceTree {
             let level = at.level(guide, n);
             let mut child = [NO_CHILD; 4];
             for (q, slot) in child.iter_mut().enumerate() {
-                let mut next = Cursor { ..at };
+                let mut next = at;
                 if !next.enter(guide, &level, q & 1, q >> 1) {
                     continue;
                 }
@@ -527,12 +537,7 @@ impl SurfaceTree {
     pub(crate) fn sample(&self, u: Vec2) -> (Vec2, f32, bool, Vec2) {
         let u = Vec2::new(unit(u.x), unit(u.y));
         let d = self.tree.descend::<true>(u);
-        let at = Cursor {
-            node: None,
-            cell: d.cell,
-            depth: d.depth,
-            settled: false,
-        };
+        let at = Cursor::inside(d.cell, d.depth);
         if d.resume {
             return self.sample_resumed(u, d, at);
         }
@@ -568,12 +573,7 @@ impl SurfaceTree {
     #[inline(never)]
     fn pdf_resumed(&self, p: [u32; 2], pdf: f32, depth: u32) -> f32 {
         let shift = FIXED_BITS - depth;
-        let at = Cursor {
-            node: None,
-            cell: [p[0] >> shift, p[1] >> shift],
-            depth,
-            settled: false,
-        };
+        let at = Cursor::inside([p[0] >> shift, p[1] >> shift], depth);
         self.tree.pdf_surface_from(self.normal, p, pdf, at)
     }
 
@@ -738,7 +738,7 @@ mod tests {
                 if pq == 0.0 {
                     continue;
                 }
-                let mut next = Cursor { ..at };
+                let mut next = at;
                 let goes_on = next.enter(tree, &level, ix, iy);
                 let settled_at = settled_at.or(next.settled.then_some((next.cell, next.depth)));
                 if goes_on {

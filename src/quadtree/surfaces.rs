@@ -179,18 +179,17 @@ impl Surfaces {
     /// and keep their slots; the other slots are freed and every count restarts. A leaf that
     /// recorded no normal keeps the normals it had, with products of the new guide.
     pub(crate) fn refine(&mut self, guide: &SamplingTree) {
-        let counts: Vec<u32> = self.slots.iter_mut().map(|s| *s.count.get_mut()).collect();
+        let count = |s: &Slot| s.count.load(Relaxed);
         let total =
-            counts.iter().map(|&c| u64::from(c)).sum::<u64>() + u64::from(*self.others.get_mut());
+            self.slots.iter().map(|s| u64::from(count(s))).sum::<u64>() + u64::from(self.others());
         let mut kept: Vec<(Vec3, u32)> = if total == 0 {
             self.products.iter().map(|p| (p.normal, 0)).collect()
         } else {
             let bar = (MIN_SHARE * total as f64).max(f64::from(MIN_COUNT));
             self.slots
                 .iter()
-                .zip(&counts)
-                .filter(|&(_, &c)| f64::from(c) >= bar)
-                .filter_map(|(s, &c)| Some((s.held()?, c)))
+                .filter(|s| f64::from(count(s)) >= bar)
+                .filter_map(|s| Some((s.held()?, count(s))))
                 .collect()
         };
         kept.sort_by_key(|k| std::cmp::Reverse(k.1));
@@ -285,6 +284,11 @@ impl Surfaces {
         self.products = Box::default();
         self.keys = [0; SLOTS];
         freed
+    }
+
+    /// Nodes of the stored products.
+    pub(crate) fn node_count(&self) -> usize {
+        self.products.iter().map(SurfaceTree::node_count).sum()
     }
 
     /// Bytes held by the stored products.
