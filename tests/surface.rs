@@ -225,3 +225,36 @@ fn bad_recorded_normals_are_ignored() {
     assert_eq!(after.samples_recorded, before.samples_recorded + 3);
     assert_eq!(after.rejected.total(), before.rejected.total());
 }
+
+#[test]
+fn a_normal_with_either_sign_of_zero_is_one_normal_and_its_cache_loads() {
+    // A renderer that flips a normal to face the viewer hands the floor's normal as (0, 1, 0)
+    // and as (−0, 1, −0): different bits, one normal. It takes one slot and one product, and
+    // the saved field loads (a loader comparing normals with `==`, where 0.0 == −0.0, would
+    // call two such slots duplicates and refuse the file).
+    let bounds = sdguide::Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let mut field = sdguide::GuidingField::new(bounds, sdguide::GuidingConfig::default()).unwrap();
+    let mut rng = Rng::new(3);
+    let floor = [Vec3::Y, Vec3::new(-0.0, 1.0, -0.0)];
+    let samples: Vec<_> = (0..4000)
+        .map(|i| sdguide::Sample {
+            position: Vec3::new(rng.next_f32(), 0.0, rng.next_f32()),
+            direction: sdguide::sphere::square_to_direction(rng.next_vec2()),
+            value: 1.0,
+            pdf: 0.25,
+            normal: Some(floor[i % 2]),
+            ..sdguide::Sample::default()
+        })
+        .collect();
+    field.record_all(&samples);
+    field.refine();
+    assert_eq!(field.stats().surface_products, 1);
+    let loaded = sdguide::GuidingField::from_bytes(&field.to_bytes()).expect("the cache loads");
+    assert_eq!(loaded.stats(), field.stats());
+    // Both signs find the stored product, the same distribution.
+    let x = Vec3::new(0.5, 0.0, 0.5);
+    let d = Vec3::new(0.3, 0.8, -0.2);
+    let [a, b] = floor.map(|n| loaded.distribution(x).at_surface(n).pdf(d));
+    assert_eq!(a, b);
+    assert!(a > 0.0);
+}

@@ -219,9 +219,13 @@ pub(super) fn decode_surfaces(
                 continue;
             }
             // A normal as `normalize` returns it: finite and of unit length to rounding, and
-            // not one an earlier slot holds.
+            // not one an earlier slot holds, bit for bit (a file written before the tally
+            // folded the sign of zero may hold both signs of one normal: `0.0 == −0.0`).
             let unit = normal.is_finite() && (normal.length() - 1.0).abs() <= 1e-5;
-            if !unit || flags > SLOT_HELD | SLOT_PRODUCT || slots.iter().any(|s| s.normal == normal)
+            let bits = |n: Vec3| n.to_array().map(f32::to_bits);
+            if !unit
+                || flags > SLOT_HELD | SLOT_PRODUCT
+                || slots.iter().any(|s| bits(s.normal) == bits(normal))
             {
                 return Err(corrupt(
                     section,

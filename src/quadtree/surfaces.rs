@@ -48,9 +48,12 @@ pub(crate) fn tallies(position: Vec3, direction: Vec3) -> bool {
     (h >> 58) % TALLY_EVERY == 0
 }
 
-/// The key of a normal's slot: a hash of its bits, never 0 (0 marks a free slot).
+/// The key of a normal's slot: a hash of its bits, never 0 (0 marks a free slot). A zero
+/// component's sign is folded first (`−0.0 + 0.0` is `+0.0`): a renderer that flips a normal to
+/// face the viewer hands the same wall's normal with either sign, and it is one normal, for one
+/// slot and one product.
 fn key(n: Vec3) -> u64 {
-    let [x, y, z] = n.to_array().map(|c| u64::from(c.to_bits()));
+    let [x, y, z] = (n + Vec3::ZERO).to_array().map(|c| u64::from(c.to_bits()));
     let h = (x | y << 32) ^ z.wrapping_mul(0x9e37_79b9_7f4a_7c15);
     let h = (h ^ h >> 31).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     (h ^ h >> 29) | 1
