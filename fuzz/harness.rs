@@ -61,12 +61,14 @@ pub fn field_ops(data: &[u8]) {
                     break;
                 };
                 // The high bit of `n` adds mixture terms (integrand v, BSDF pdf `pdf`, guide pdf
-                // `v`): arbitrary values for the guide-selection sums.
+                // `v`): arbitrary values for the guide-selection sums. The next bit adds a second
+                // moment (`pdf`, any value, to the second-moment sums).
                 let mut sample = Sample {
                     position: p,
                     direction: d,
                     value: v,
                     pdf,
+                    second_moment: (n & 0x40 != 0).then_some(pdf),
                     ..Sample::default()
                 };
                 if n & 0x80 != 0 {

@@ -181,7 +181,9 @@ impl GuidingField {
                 value = mixture_value(m.integrand, m.guide_pdf, p_g, sample.pdf);
             }
         }
-        let w = weights(value, sample.pdf);
+        // The second moment without the roulette's added variance, where the sample has one.
+        let (w1, w2) = weights(value, sample.pdf);
+        let w = (w1, w2 * sample.square_ratio());
         match self.config.spatial_filter {
             SpatialFilter::Nearest => self.insert_directional(home, square, w, true),
             SpatialFilter::Stochastic => {

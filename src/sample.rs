@@ -52,6 +52,22 @@ pub struct Sample {
     /// [`SurfaceDistribution`](crate::SurfaceDistribution)). `None`, or a zero or non-finite
     /// normal: the sample is recorded without one.
     pub normal: Option<Vec3>,
+    /// An estimate of `value²` without the variance the renderer's Russian roulette added to
+    /// `value`, for the second moment the [`L2`](crate::LeafRule::L2) rule weighs leaves by;
+    /// `None`: `value²`. Non-negative and finite, like `value`.
+    ///
+    /// Roulette that follows the path's throughput plays with a probability `s` that falls as
+    /// this vertex's `pdf` rises, and the value it leaves, `1/s` times what arrived, has a
+    /// second moment that rises with it: so `value²` alone tells the l2 rule that directions
+    /// the guide already samples often carry more light than they do, and the rule keeps them.
+    /// With `A` the part of the value that arrived before the first roulette after this vertex
+    /// and `s` that roulette's probability, `(Y² − (1 − s)·A²)/s` where the path survived it,
+    /// with `Y = A + s·(value − A)`, and `A²` where it ended there, is an unbiased estimate of
+    /// the square without that roulette, whatever the pdf (the demo's integrator computes it).
+    /// The field scales what it records by the ratio `second_moment / value²`, so the estimate
+    /// also serves [`L2Mixture`](crate::LeafRule::L2Mixture)'s derived value; the mean the
+    /// [`L1`](crate::LeafRule::L1) rule weighs by is unbiased either way and does not use it.
+    pub second_moment: Option<f32>,
 }
 
 /// A sample's terms of the one-sample mixture `q = a·p_guide + (1 − a)·p_bsdf`.
@@ -113,6 +129,17 @@ impl Sample {
         self
     }
 
+    /// What the field scales the recorded second moment by: `second_moment / value²`, in
+    /// `f64`; 1 without a second moment or with a zero value (which records nothing either
+    /// way).
+    #[inline]
+    pub(crate) fn square_ratio(&self) -> f64 {
+        match self.second_moment {
+            Some(m) if self.value > 0.0 => f64::from(m) / f64::from(self.value).powi(2),
+            _ => 1.0,
+        }
+    }
+
     /// Checks the sample and returns its direction's point on the unit square (see
     /// [`sphere`](crate::sphere)), or why the field rejects it.
     ///
@@ -124,7 +151,8 @@ impl Sample {
         if !self.position.is_finite() {
             return Err(RejectReason::NonFinitePosition);
         }
-        if !(self.value >= 0.0 && self.value.is_finite()) {
+        let non_negative = |v: f32| v >= 0.0 && v.is_finite();
+        if !(non_negative(self.value) && self.second_moment.is_none_or(non_negative)) {
             return Err(RejectReason::BadValue);
         }
         if !(self.pdf > 0.0 && self.pdf.is_finite()) {
@@ -155,7 +183,8 @@ pub enum RejectReason {
     OutOfBounds,
     /// The direction was zero, NaN or infinite.
     BadDirection,
-    /// The value (or the mixture's integrand) was negative, NaN or infinite.
+    /// The value (or the mixture's integrand, or the second moment) was negative, NaN or
+    /// infinite.
     BadValue,
     /// The pdf was zero, negative, NaN or infinite (or a mixture pdf negative or not finite).
     BadPdf,

@@ -89,6 +89,28 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
         (ok.with_mixture(-1.0, 1.0, 1.0), "value"),
         (ok.with_mixture(1.0, -1.0, 1.0), "pdf"),
         (ok.with_mixture(1.0, 1.0, INF), "pdf"),
+        // So is the second moment.
+        (
+            Sample {
+                second_moment: Some(NAN),
+                ..ok
+            },
+            "value",
+        ),
+        (
+            Sample {
+                second_moment: Some(-1.0),
+                ..ok
+            },
+            "value",
+        ),
+        (
+            Sample {
+                second_moment: Some(INF),
+                ..ok
+            },
+            "value",
+        ),
     ];
     let mut expected = Rejections::default();
     for (s, reason) in bad {
@@ -134,6 +156,23 @@ fn every_bad_sample_is_rejected_and_counted_by_reason() {
             ..ok
         }
         .with_mixture(f32::MAX, f32::MAX, 0.0),
+        // A second moment at its extremes: zero, huge beside a tiny value, any beside a zero
+        // value.
+        Sample {
+            second_moment: Some(0.0),
+            ..ok
+        },
+        Sample {
+            value: f32::from_bits(1),
+            pdf: f32::from_bits(1),
+            second_moment: Some(f32::MAX),
+            ..ok
+        },
+        Sample {
+            value: 0.0,
+            second_moment: Some(5.0),
+            ..ok
+        },
     ];
     field.record_all(&good);
     let stats = field.stats();

@@ -365,3 +365,37 @@ fn deferred_box_spreads_each_quadrant_as_the_box_filter_spreads_a_sample_at_its_
     assert_eq!(topology(&a), topology(&b));
     assert!(topology(&a).len() > 4, "{:?}", topology(&a));
 }
+
+#[test]
+fn the_second_moment_replaces_the_squared_value_and_leaves_the_mean() {
+    // Nearest filters: the one leaf the sample lands in holds exactly its weights.
+    let field = GuidingField::new(
+        unit_box(),
+        config(SpatialFilter::Nearest, DirectionalFilter::Nearest),
+    )
+    .unwrap();
+    let base = Sample {
+        position: Vec3::splat(0.5),
+        direction: Vec3::Z,
+        value: 2.0,
+        pdf: 0.5,
+        ..Sample::default()
+    };
+    let moments = |s: Sample| {
+        let f = field.clone();
+        f.record(&s);
+        let r = recorded(&f);
+        let m: Vec<_> = r.iter().filter(|(_, _, m)| m.count > 0).collect();
+        assert_eq!(m.len(), 1);
+        (m[0].2.sum, m[0].2.sum_sq)
+    };
+    assert_eq!(moments(base), (4.0, 8.0));
+    // A roulette-free estimate of the square of 1.5 instead of 4: Σ v²/p becomes 3.
+    let with = Sample {
+        second_moment: Some(1.5),
+        ..base
+    };
+    assert_eq!(moments(with), (4.0, 3.0));
+    // With a zero value nothing is recorded, whatever the second moment says.
+    assert_eq!(moments(Sample { value: 0.0, ..with }), (0.0, 0.0));
+}

@@ -97,10 +97,11 @@ static void *record(void *arg) {
             }
             sdg_distribution_destroy(dist);
             float f = light(d); /* the integrand: light times a constant BSDF */
-            /* The points lie on no surface: a zero normal (a renderer passes its shading normal). */
+            /* The points lie on no surface: a zero normal (a renderer passes its shading normal).
+               No roulette decided what arrived: no second moment (0), value² serves. */
             sdg_vec3 no_normal = {0.0f, 0.0f, 0.0f};
             sdg_sample s = {x, d, light(d), a * guide_pdf + (1.0f - a) * bsdf_pdf, f, bsdf_pdf, guide_pdf,
-                            no_normal};
+                            no_normal, 0.0f};
             batch[i] = s;
         }
         CHECK(sdg_field_record_batch(j->field, batch, BATCH) == SDG_STATUS_OK, "record");

@@ -245,6 +245,13 @@ typedef struct {
    finite: none.
    */
   sdg_vec3 normal;
+  /*
+   An estimate of `value²` without the variance the renderer's Russian roulette added to
+   `value` (see the Rust `Sample::second_moment`: with throughput roulette, `value²` rises
+   with the pdf, and the l2 rule would keep directions the guide already favours). 0: none,
+   `value²` is used (a positive value's estimate is never 0).
+   */
+  float second_moment;
 } sdg_sample;
 
 /*

@@ -179,6 +179,11 @@ pub struct sdg_sample {
     /// frequent normals, which makes those queries about as cheap as plain ones). Zero or not
     /// finite: none.
     pub normal: sdg_vec3,
+    /// An estimate of `value²` without the variance the renderer's Russian roulette added to
+    /// `value` (see the Rust `Sample::second_moment`: with throughput roulette, `value²` rises
+    /// with the pdf, and the l2 rule would keep directions the guide already favours). 0: none,
+    /// `value²` is used (a positive value's estimate is never 0).
+    pub second_moment: f32,
 }
 
 /// Splitting mode: Russian roulette only (factors up to 1).
@@ -539,6 +544,7 @@ fn record(field: &GuidingField, s: &sdg_sample) -> sdg_status {
         value: s.value,
         pdf: s.pdf,
         normal: Some(s.normal.into()),
+        second_moment: (s.second_moment != 0.0).then_some(s.second_moment),
         ..Sample::default()
     };
     if [s.integrand, s.bsdf_pdf, s.guide_pdf] != [0.0; 3] {

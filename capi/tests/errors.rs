@@ -153,11 +153,28 @@ fn non_finite_inputs_are_rejected_or_refused() {
             sdg_field_record(f, &bad_mixture),
             sdg_status::SampleRejected
         );
+        // So is the second moment: a negative one rejects the sample as a bad value; 0 means
+        // none.
+        let bad_moment = sdg_sample {
+            second_moment: -1.0,
+            ..good
+        };
+        assert_eq!(sdg_field_record(f, &bad_moment), sdg_status::SampleRejected);
+        let moment = sdg_sample {
+            second_moment: 0.5,
+            ..good
+        };
+        assert_eq!(sdg_field_record(f, &moment), sdg_status::Ok);
         let mut stats = sdg_stats::default();
         assert_eq!(sdg_field_stats(f, &mut stats), sdg_status::Ok);
         assert_eq!(
-            (stats.rejected[0], stats.rejected[4], stats.samples_recorded),
-            (1, 2, 2)
+            (
+                stats.rejected[0],
+                stats.rejected[3],
+                stats.rejected[4],
+                stats.samples_recorded
+            ),
+            (1, 1, 2, 3)
         );
         // Queries: a non-finite position, sample or direction is an invalid argument.
         assert_eq!(

@@ -357,6 +357,49 @@ struct Traced {
     radiance: Vec3,
     /// Distance to its first hit (infinite if none).
     distance: f32,
+    /// The first classic roulette the path played below the ray.
+    roulette: FirstRoulette,
+}
+
+/// The first classic Russian roulette a path played below a ray or a direction, and the part of
+/// the radiance that arrived along it before that roulette: what a vertex needs for the
+/// estimate of its value's square without that roulette (`Sample::second_moment`).
+#[derive(Clone, Copy, Debug)]
+struct FirstRoulette {
+    /// The radiance added before the roulette (all of it where none was played).
+    before: Vec3,
+    /// The probability of going on (1 where none was played).
+    probability: f32,
+    /// Whether the path went on.
+    survived: bool,
+}
+
+impl FirstRoulette {
+    /// No roulette below: all of `radiance` came before it.
+    fn none(radiance: Vec3) -> Self {
+        FirstRoulette {
+            before: radiance,
+            probability: 1.0,
+            survived: true,
+        }
+    }
+
+    /// An unbiased estimate of what the square of `value` (a luminance that this roulette, if
+    /// any, weighed) would be without the roulette: `(Y² − (1 − s)·A²)/s` where the path
+    /// survived, `Y = A + s·(value − A)` the value without the roulette's `1/s`, and `A²` where
+    /// it ended (`A` what came before, `s` the probability). Its expectation over the
+    /// roulette's coin is `(A + B)²`, with `B` what the path would have brought after it.
+    fn second_moment(self, value: f32) -> f32 {
+        let (a, s) = (luminance(self.before), self.probability);
+        if s >= 1.0 {
+            return value * value;
+        }
+        if !self.survived {
+            return a * a;
+        }
+        let y = a + s * (value - a);
+        ((y * y - (1.0 - s) * a * a) / s).max(0.0)
+    }
 }
 
 impl Path<'_, '_> {
@@ -381,6 +424,7 @@ impl Path<'_, '_> {
                 return Traced {
                     radiance: l,
                     distance: first_hit.unwrap_or(f32::INFINITY),
+                    roulette: FirstRoulette::none(l),
                 };
             };
             let distance = *first_hit.get_or_insert(hit.t);
@@ -399,6 +443,7 @@ impl Path<'_, '_> {
                 return Traced {
                     radiance: l,
                     distance,
+                    roulette: FirstRoulette::none(l),
                 };
             }
             let material = scene.material(&hit);
@@ -487,21 +532,36 @@ impl Path<'_, '_> {
                 Some(q) => continuations(q, self.rng.next_f32()),
                 None => (1, 1.0),
             };
+            let before = l;
+            let mut below = None;
             for _ in 0..n {
-                l += weight
-                    * self.continue_from(&hit, &sampler, depth, beta * weight, factor.is_none());
+                let (reflected, roulette) =
+                    self.continue_from(&hit, &sampler, depth, beta * weight, factor.is_none());
+                l += weight * reflected;
+                below = Some(roulette);
             }
+            // Below a single classic continuation the first roulette is its own; below a split
+            // one (or roulette by the splitting factor) none is tracked.
+            let roulette = match below {
+                Some(r) if factor.is_none() => FirstRoulette {
+                    before: before + r.before,
+                    ..r
+                },
+                _ => FirstRoulette::none(l),
+            };
             return Traced {
                 radiance: l,
                 distance,
+                roulette,
             };
         }
     }
 
     /// One continuation from a vertex: a direction from its sampler and the radiance along it;
-    /// returns the continuation's estimate of the light the vertex reflects, `f·L_i/q`. With
-    /// `classic`, the path then meets throughput roulette (from the roulette depth on). The
-    /// guide's sample and the continuation are recorded when the pass records.
+    /// returns the continuation's estimate of the light the vertex reflects, `f·L_i/q`, and the
+    /// first classic roulette below it (what it reflected before that, in the same units).
+    /// With `classic`, the path then meets throughput roulette (from the roulette depth on).
+    /// The guide's sample and the continuation are recorded when the pass records.
     fn continue_from(
         &mut self,
         hit: &crate::scene::Hit,
@@ -509,10 +569,10 @@ impl Path<'_, '_> {
         depth: usize,
         beta: Vec3,
         classic: bool,
-    ) -> Vec3 {
+    ) -> (Vec3, FirstRoulette) {
         let rays_before = self.rays;
         let Some(s) = sampler.sample(self.rng) else {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, FirstRoulette::none(Vec3::ZERO));
         };
         let f = sampler.bsdf_cos(s.direction);
         let factor = f / s.pdf.mixture;
@@ -530,8 +590,17 @@ impl Path<'_, '_> {
         // use comes from there. Not recording it would leave those cells without samples, and
         // a cell without samples borrows its parent's estimate (the field's shrinkage), which
         // would keep sending half the guide's samples into the surface.
-        let (incident, distance) = if f == Vec3::ZERO || self.rng.next_f32() >= survive {
-            (Vec3::ZERO, f32::INFINITY)
+        // The roulette below the direction, as seen from this vertex: its own, if it played
+        // one, with nothing before it; else the first one the traced path played.
+        let own = |survived| FirstRoulette {
+            before: Vec3::ZERO,
+            probability: survive,
+            survived,
+        };
+        let (incident, distance, roulette) = if f == Vec3::ZERO {
+            (Vec3::ZERO, f32::INFINITY, FirstRoulette::none(Vec3::ZERO))
+        } else if self.rng.next_f32() >= survive {
+            (Vec3::ZERO, f32::INFINITY, own(false))
         } else {
             let ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
             let t = self.trace(
@@ -540,7 +609,8 @@ impl Path<'_, '_> {
                 beta / survive,
                 Some((hit.position, s.pdf.mixture)),
             );
-            (t.radiance / survive, t.distance)
+            let roulette = if survive < 1.0 { own(true) } else { t.roulette };
+            (t.radiance / survive, t.distance, roulette)
         };
         let reflected = factor * incident;
         if let Some(g) = self.guiding.filter(|g| g.record) {
@@ -548,11 +618,12 @@ impl Path<'_, '_> {
             // incident radiance, the mixture pdf, and the mixture terms the guide probability
             // learns from.
             let integrand = luminance(f * incident);
+            let value = luminance(incident);
             record(
                 g.field,
                 (hit.position, sampler.frame.normal()),
                 &s,
-                luminance(incident),
+                (value, roulette.second_moment(value)),
                 integrand,
                 distance,
             );
@@ -564,19 +635,23 @@ impl Path<'_, '_> {
                 cost: (self.rays - rays_before) as f32,
             });
         }
-        reflected
+        let roulette = FirstRoulette {
+            before: factor * roulette.before,
+            ..roulette
+        };
+        (reflected, roulette)
     }
 }
 
 /// Records one vertex into the guide: at the position, with the shading normal the guide was
 /// queried with there, the radiance `incident` (a luminance) arrived along the sampled
-/// direction `s`, `integrand` is `f·L_i` there, and `distance` is how far the direction reached
-/// (Open PGL's parallax compensation).
+/// direction `s`, with the estimate of its square without roulette, `integrand` is `f·L_i`
+/// there, and `distance` is how far the direction reached (Open PGL's parallax compensation).
 fn record(
     guide: Guide<'_>,
     (position, normal): (Vec3, Vec3),
     s: &DirectionSample,
-    incident: f32,
+    (incident, second_moment): (f32, f32),
     integrand: f32,
     #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))] distance: f32,
 ) {
@@ -588,6 +663,7 @@ fn record(
                 value: incident,
                 pdf: s.pdf.mixture,
                 normal: Some(normal),
+                second_moment: Some(second_moment),
                 ..Sample::default()
             }
             .with_mixture(integrand, s.pdf.bsdf, s.pdf.guide);
@@ -601,5 +677,37 @@ fn record(
             pdf: s.pdf.mixture,
             distance,
         }]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Over the roulette's coin, the estimate of the square has the expectation of the square
+    /// without the roulette, `(A + B)²`, whatever the probability: the property that keeps the
+    /// guide's second moment from following its own pdf.
+    #[test]
+    fn the_roulette_free_square_is_unbiased() {
+        for (a, b) in [(0.0f32, 2.0f32), (0.7, 0.0), (0.4, 1.3), (3.0, 0.05)] {
+            for s in [0.05f32, 0.3, 0.5, 0.95] {
+                let roulette = |survived| FirstRoulette {
+                    before: Vec3::splat(a),
+                    probability: s,
+                    survived,
+                };
+                // What the vertex records: everything before, and `1/s` times what came after.
+                let survived = roulette(true).second_moment(a + b / s);
+                let ended = roulette(false).second_moment(a);
+                let expected = (a + b) * (a + b);
+                let mean = s * survived + (1.0 - s) * ended;
+                assert!(
+                    (mean - expected).abs() <= 1e-5 * expected.max(1.0),
+                    "A = {a}, B = {b}, s = {s}: {mean} against {expected}"
+                );
+            }
+        }
+        // Without a roulette the square is the value's.
+        assert_eq!(FirstRoulette::none(Vec3::ONE).second_moment(3.0), 9.0);
     }
 }
