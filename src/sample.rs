@@ -151,6 +151,7 @@ impl Sample {
         if !self.position.is_finite() {
             return Err(RejectReason::NonFinitePosition);
         }
+        // Values, second moments and the mixture's pdfs may be 0; the sample's own pdf may not.
         let non_negative = |v: f32| v >= 0.0 && v.is_finite();
         if !(non_negative(self.value) && self.second_moment.is_none_or(non_negative)) {
             return Err(RejectReason::BadValue);
@@ -159,11 +160,10 @@ impl Sample {
             return Err(RejectReason::BadPdf);
         }
         if let Some(m) = &self.mixture {
-            if !(m.integrand >= 0.0 && m.integrand.is_finite()) {
+            if !non_negative(m.integrand) {
                 return Err(RejectReason::BadValue);
             }
-            let pdf_ok = |p: f32| p >= 0.0 && p.is_finite();
-            if !(pdf_ok(m.bsdf_pdf) && pdf_ok(m.guide_pdf)) {
+            if !(non_negative(m.bsdf_pdf) && non_negative(m.guide_pdf)) {
                 return Err(RejectReason::BadPdf);
             }
         }
