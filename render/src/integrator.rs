@@ -2,13 +2,13 @@
 //!
 //! A unidirectional path tracer with next-event estimation (unless the scene turns it off),
 //! multiple importance sampling (power heuristic), and Russian roulette — classic, by the
-//! path's throughput, or efficiency-aware roulette and splitting from the field's continuation
-//! estimates. Paths are traced depth first, recursively, so that a vertex may have several
-//! continuations. Smooth dielectrics are delta vertices, passed through without a light sample
-//! or a guide lookup. With guiding, every scattering direction is drawn from the **one-sample
-//! mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's distribution at
-//! the vertex and `a` its learned guide probability. The wiring points are marked `GUIDING:`
-//! below; there are four:
+//! path's throughput, none, or efficiency-aware roulette and splitting from the field's
+//! continuation estimates. Paths are traced depth first, recursively, so that a vertex may have
+//! several continuations. Smooth dielectrics are delta vertices, passed through without a light
+//! sample or a guide lookup. With guiding, every scattering direction is drawn from the
+//! **one-sample mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's
+//! distribution at the vertex and `a` its learned guide probability. The wiring points are
+//! marked `GUIDING:` below; there are four:
 //!
 //! 1. at a vertex, look up the distribution once, as its product with the clamped cosine about
 //!    the shading normal (`field.distribution(x).at_surface(n)`: every guided material here
@@ -45,6 +45,18 @@ use sdguide::{
 pub const MAX_DEPTH: usize = 10;
 /// Russian roulette starts after this many scattering events.
 const ROULETTE_DEPTH: usize = 3;
+
+/// Whether a path plays classic throughput roulette where no efficiency-aware policy decides.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Roulette {
+    /// Survive with probability `min(β, 0.95)`, `β` the throughput, from the third bounce.
+    #[default]
+    Classic,
+    /// Never: every path goes on to [`MAX_DEPTH`] unless it leaves the scene. Costs more rays
+    /// per sample, and keeps the guide's samples: classic roulette ends the paths a guide aims
+    /// where its density is high, since their throughput `f/q` is low.
+    Off,
+}
 
 /// The guiding field a render samples: sdguide's, or the peer's.
 #[derive(Clone, Copy)]
@@ -308,16 +320,16 @@ pub struct PathSample {
 /// The radiance arriving along `ray` (one path sample), guided when `guiding` is given, with
 /// classic roulette.
 pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, ray: Ray, rng: &mut Rng) -> Vec3 {
-    path_sample(scene, guiding, None, ray, rng).radiance
+    path_sample(scene, guiding, (Roulette::Classic, None), ray, rng).radiance
 }
 
 /// The radiance arriving along `ray` and its cost, guided when `guiding` is given, with
 /// roulette and splitting by `continuations` when given (`pixel`: the pixel's index into its
-/// `pixels`).
+/// `pixels`), else with `roulette`.
 pub fn path_sample(
     scene: &Scene,
     guiding: Option<Guiding<'_>>,
-    continuations: Option<(&Continuations<'_>, usize)>,
+    (roulette, continuations): (Roulette, Option<(&Continuations<'_>, usize)>),
     ray: Ray,
     rng: &mut Rng,
 ) -> PathSample {
@@ -330,6 +342,7 @@ pub fn path_sample(
         guiding,
         continuations: continuations.map(|(c, _)| *c),
         policy,
+        roulette,
         rng,
         rays: 0,
     };
@@ -347,6 +360,8 @@ struct Path<'s, 'a> {
     continuations: Option<Continuations<'a>>,
     /// The splitting policy and the pixel's `sqrt(I² + ε)`, when there is a policy.
     policy: Option<(Splitting, f32)>,
+    /// The roulette where no policy decides.
+    roulette: Roulette,
     rng: &'s mut Rng,
     rays: u32,
 }
@@ -357,13 +372,14 @@ struct Traced {
     radiance: Vec3,
     /// Distance to its first hit (infinite if none).
     distance: f32,
-    /// The first classic roulette the path played below the ray.
+    /// The first roulette the path played below the ray.
     roulette: FirstRoulette,
 }
 
-/// The first classic Russian roulette a path played below a ray or a direction, and the part of
-/// the radiance that arrived along it before that roulette: what a vertex needs for the
-/// estimate of its value's square without that roulette (`Sample::second_moment`).
+/// The first Russian roulette a path played below a ray or a direction (classic, or by an
+/// efficiency-aware factor below 1), and the part of the radiance that arrived along it before
+/// that roulette: what a vertex needs for the estimate of its value's square without that
+/// roulette (`Sample::second_moment`).
 #[derive(Clone, Copy, Debug)]
 struct FirstRoulette {
     /// The radiance added before the roulette (all of it where none was played).
@@ -540,10 +556,16 @@ impl Path<'_, '_> {
                 l += weight * reflected;
                 below = Some(roulette);
             }
-            // Below a single classic continuation the first roulette is its own; below a split
-            // one (or roulette by the splitting factor) none is tracked.
-            let roulette = match below {
-                Some(r) if factor.is_none() => FirstRoulette {
+            // The first roulette below the ray: this vertex's own where its factor played
+            // one, with all it gathered before; else, below its one continuation of weight 1,
+            // the first one below that. Below a split vertex none is tracked.
+            let roulette = match (factor, below) {
+                (Some(q), _) if q < 1.0 => FirstRoulette {
+                    before,
+                    probability: q,
+                    survived: n == 1,
+                },
+                (q, Some(r)) if q.is_none_or(|q| q == 1.0) => FirstRoulette {
                     before: before + r.before,
                     ..r
                 },
@@ -559,8 +581,9 @@ impl Path<'_, '_> {
 
     /// One continuation from a vertex: a direction from its sampler and the radiance along it;
     /// returns the continuation's estimate of the light the vertex reflects, `f·L_i/q`, and the
-    /// first classic roulette below it (what it reflected before that, in the same units).
-    /// With `classic`, the path then meets throughput roulette (from the roulette depth on).
+    /// first roulette below it (what it reflected before that, in the same units).
+    /// With `classic` (no splitting policy decides), the path then meets the path's
+    /// [`Roulette`].
     /// The guide's sample and the continuation are recorded when the pass records.
     fn continue_from(
         &mut self,
@@ -580,11 +603,12 @@ impl Path<'_, '_> {
         // Classic roulette decides after the direction is drawn, so a vertex it ends still
         // records its direction (with zero radiance): the recorded radiance, 1/survive times
         // what arrived or nothing, is unbiased whatever the direction.
-        let survive = if classic && depth + 1 >= ROULETTE_DEPTH {
-            beta.max_element().min(0.95)
-        } else {
-            1.0
-        };
+        let survive =
+            if classic && self.roulette == Roulette::Classic && depth + 1 >= ROULETTE_DEPTH {
+                beta.max_element().min(0.95)
+            } else {
+                1.0
+            };
         // GUIDING (3): a guide direction below the surface (f = 0) ends the continuation, and
         // is recorded too, with zero radiance: the field learns that nothing this vertex can
         // use comes from there. Not recording it would leave those cells without samples, and

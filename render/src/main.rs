@@ -7,7 +7,7 @@
 //!     [--spp N] [--rule both] [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
 //!     [--training-share 0.3] [--guide-probability F] [--max-guide-probability F] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
-//!     [--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)]
+//!     [--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)]
 //! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
@@ -32,7 +32,7 @@ const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caus
 [--width N] [--height N] [--training-share F] [--guide-probability F] [--max-guide-probability F] \
 [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
-[--nee on|off] [--rrs classic|ear|ears (or a list: classic,ears)] [--reference] \
+[--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)] [--reference] \
 [--probe CACHE]";
 
 struct Args {
@@ -61,7 +61,8 @@ struct Args {
     probe: Option<PathBuf>,
     /// The Open PGL methods to run: with the cosine product or not.
     peers: Vec<bool>,
-    /// Roulette and splitting variants, each run with every method (the peer: classic only).
+    /// Roulette and splitting variants, each run with every method (the peer: those without
+    /// splitting).
     rrs: Vec<Rrs>,
 }
 
@@ -177,6 +178,7 @@ fn parse() -> Result<Args, String> {
                         "classic" => Ok(Rrs::Classic),
                         "ear" => Ok(Rrs::Ear),
                         "ears" => Ok(Rrs::Ears),
+                        "none" => Ok(Rrs::None),
                         _ => Err(format!("bad value for --rrs: {value}")),
                     })
                     .collect::<Result<_, _>>()?;
@@ -333,12 +335,27 @@ fn run() -> Result<(), String> {
         methods.insert(0, (Method::Unguided, Rrs::Classic));
     }
     methods.sort_by_key(|&(m, r)| (m != Method::Unguided || r != Rrs::Classic) as u8);
+    // The peer has no splitting: it runs with each roulette asked for that has none (classic
+    // if none such is).
     #[cfg(feature = "openpgl")]
-    methods.extend(
-        args.peers
+    {
+        let mut roulettes: Vec<Rrs> = args
+            .rrs
             .iter()
-            .map(|&cosine_product| (Method::OpenPgl { cosine_product }, Rrs::Classic)),
-    );
+            .copied()
+            .filter(|r| r.mode().is_none())
+            .collect();
+        if roulettes.is_empty() {
+            roulettes.push(Rrs::Classic);
+        }
+        for &cosine_product in &args.peers {
+            methods.extend(
+                roulettes
+                    .iter()
+                    .map(|&rrs| (Method::OpenPgl { cosine_product }, rrs)),
+            );
+        }
+    }
     let mut report = header(&args, &command);
     let mut summaries = Vec::new();
     for scene in &scenes {
@@ -407,26 +424,42 @@ struct Rendered {
 }
 
 impl Run {
-    /// Method `i`'s time per spp over unguided's.
-    fn cost(&self, i: usize) -> f64 {
-        let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
-        o.time_per_spp().as_secs_f64() / base.time_per_spp().as_secs_f64().max(1e-12)
+    /// Method `i`'s time per spp over method `base`'s.
+    fn cost(&self, i: usize, base: usize) -> f64 {
+        let (b, o) = (&self.outcomes[base].outcome, &self.outcomes[i].outcome);
+        o.time_per_spp().as_secs_f64() / b.time_per_spp().as_secs_f64().max(1e-12)
     }
 
     /// Method `i`'s (relMSE of the combined image, relMSE × spp of the final one, time per
     /// spp), each over unguided's.
     fn ratios(&self, i: usize) -> Option<(f64, f64, f64)> {
-        let (base, o) = (&self.outcomes[0].outcome, &self.outcomes[i].outcome);
+        self.ratios_to(i, 0)
+    }
+
+    /// Method `i`'s relMSE × spp over that of unguided with the same roulette (without
+    /// splitting, the peer's), when the run has it.
+    fn per_sample_same_roulette(&self, i: usize) -> Option<f64> {
+        let rrs = self.outcomes[i].outcome.rrs;
+        let base = self
+            .outcomes
+            .iter()
+            .position(|r| r.outcome.method == Method::Unguided && r.outcome.rrs == rrs)?;
+        Some(self.ratios_to(i, base)?.1)
+    }
+
+    /// [`Run::ratios`] over method `base`'s instead of unguided's.
+    fn ratios_to(&self, i: usize, base: usize) -> Option<(f64, f64, f64)> {
+        let (b, o) = (&self.outcomes[base].outcome, &self.outcomes[i].outcome);
         let combined = (
             self.outcomes[i].combined_error,
-            self.outcomes[0].combined_error,
+            self.outcomes[base].combined_error,
         );
-        match (self.outcomes[i].error, self.outcomes[0].error, combined) {
+        match (self.outcomes[i].error, self.outcomes[base].error, combined) {
             // relMSE falls as 1/spp, so relMSE × spp compares methods per sample.
             (Some((e, _)), Some((e0, _)), (Some(c), Some(c0))) => Some((
                 c / c0,
-                (e * o.spp as f64) / (e0 * base.spp.max(1) as f64),
-                self.cost(i),
+                (e * o.spp as f64) / (e0 * b.spp.max(1) as f64),
+                self.cost(i, base),
             )),
             _ => None,
         }
@@ -632,8 +665,9 @@ fn scene_report(scene: &Scene, args: &Args, runs: &[Run]) -> String {
 fn seed_table(run: &Run) -> String {
     let mut r = String::from(
         "| method | spp | training | total time | relMSE | with training passes | relMSE vs \
-         unguided | per sample vs unguided | time per spp vs unguided | mean vs reference |\n\
-         |---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n",
+         unguided | per sample vs unguided | per sample vs unguided, same roulette | time per \
+         spp vs unguided | mean vs reference |\n\
+         |---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (i, rendered) in run.outcomes.iter().enumerate() {
         let o = &rendered.outcome;
@@ -646,7 +680,7 @@ fn seed_table(run: &Run) -> String {
                 o.training_spp
             ),
         };
-        let cost = run.cost(i);
+        let cost = run.cost(i, 0);
         let (error, deviation) = match rendered.error {
             Some((e, z)) => (format!("{e:.5}"), format!("{z:+.1}σ")),
             None => ("—".into(), "—".into()),
@@ -658,10 +692,13 @@ fn seed_table(run: &Run) -> String {
             Some((ratio, per_sample, _)) => (format!("{ratio:.3}×"), format!("{per_sample:.3}×")),
             None => ("—".into(), "—".into()),
         };
+        let same = run
+            .per_sample_same_roulette(i)
+            .map_or("—".into(), |x| format!("{x:.3}×"));
         let _ = writeln!(
             r,
             "| {} | {} | {training} | {:.1} s | {error} | {combined} | {ratio} | {per_sample} | \
-             {cost:.2}× | {deviation} |",
+             {same} | {cost:.2}× | {deviation} |",
             o.name(),
             o.spp,
             o.total_time.as_secs_f32(),
@@ -676,8 +713,8 @@ fn summary(scenes: &[(String, Vec<Run>)]) -> String {
     let seeds = scenes.first().map_or(0, |(_, runs)| runs.len());
     let mut r = format!(
         "## Summary over {seeds} seed{}: mean (min–max) of the ratios to unguided\n\n\
-         | scene | method | relMSE vs unguided | per sample vs unguided | time per spp vs \
-         unguided |\n|---|---|---:|---:|---:|\n",
+         | scene | method | relMSE vs unguided | per sample vs unguided | per sample vs \
+         unguided, same roulette | time per spp vs unguided |\n|---|---|---:|---:|---:|---:|\n",
         if seeds == 1 { "" } else { "s" }
     );
     let spread = |v: &[f64]| {
@@ -704,12 +741,17 @@ fn summary(scenes: &[(String, Vec<Run>)]) -> String {
             let column = |of: fn(&(f64, f64, f64)) -> f64| {
                 spread(&ratios.iter().map(of).collect::<Vec<_>>())
             };
+            let same: Vec<f64> = runs
+                .iter()
+                .filter_map(|run| run.per_sample_same_roulette(i))
+                .collect();
             let _ = writeln!(
                 r,
-                "| {name} | {} | {} | {} | {} |",
+                "| {name} | {} | {} | {} | {} | {} |",
                 runs[0].outcomes[i].outcome.name(),
                 column(|t| t.0),
                 column(|t| t.1),
+                spread(&same),
                 column(|t| t.2)
             );
         }
@@ -722,9 +764,10 @@ fn footnotes() -> String {
     "relMSE: the final render's. With training passes: the final render and the training \
      passes combined by inverse variance; relMSE vs unguided compares these, what each \
      method's whole budget bought. Per sample: the final render's relMSE × spp over \
-     unguided's. Time per spp: the final render's, training excluded. Mean vs reference: the \
-     image mean's distance from the reference's in standard errors of the pixel differences \
-     (|z| ≤ 3 for an unbiased render).\n\n\
+     unguided's (with classic roulette; same roulette: over unguided's with the method's \
+     roulette and splitting, the peer's without splitting). Time per spp: the final render's, \
+     training excluded. Mean vs reference: the image mean's distance from the reference's in \
+     standard errors of the pixel differences (|z| ≤ 3 for an unbiased render).\n\n\
      Images: `<scene>-<method>.png` (tone-mapped) and `.exr` (linear), `-seed<N>` added when \
      several seeds run; `<scene>-compare.png`: reference and methods on top, per-pixel relative \
      squared error below (log scale, 10⁻⁴ black to 10 yellow; the ramp is under the \

@@ -3,7 +3,7 @@
 //! time counts against the budget).
 
 use crate::image::Image;
-use crate::integrator::{Continuations, Guide, Guiding, path_sample};
+use crate::integrator::{Continuations, Guide, Guiding, Roulette, path_sample};
 use crate::material::luminance;
 use crate::passes::{POLICY_SPP, PassImage, PixelEstimates, combine, splitting};
 use crate::rng::Rng;
@@ -33,7 +33,7 @@ pub fn render_pass(
     render_samples(
         scene,
         guiding,
-        None,
+        (Roulette::Classic, None),
         size,
         (spp, seed, pass),
         |pixel, l, _| {
@@ -48,7 +48,7 @@ pub fn render_pass(
 pub fn render_pass_image(
     scene: &Scene,
     guiding: Option<Guiding<'_>>,
-    continuations: Option<&Continuations<'_>>,
+    continuations: (Roulette, Option<&Continuations<'_>>),
     image: &mut PassImage,
     (spp, seed, pass): (u32, u64, u32),
 ) {
@@ -74,7 +74,7 @@ pub fn render_pass_image(
 fn render_samples(
     scene: &Scene,
     guiding: Option<Guiding<'_>>,
-    continuations: Option<&Continuations<'_>>,
+    (roulette, continuations): (Roulette, Option<&Continuations<'_>>),
     (width, height): (usize, usize),
     (spp, seed, pass): (u32, u64, u32),
     mut add: impl FnMut(usize, Vec3, f64),
@@ -105,7 +105,7 @@ fn render_samples(
                         let sample = path_sample(
                             scene,
                             guiding,
-                            continuations.map(|c| (c, index)),
+                            (roulette, continuations.map(|c| (c, index))),
                             ray,
                             &mut rng,
                         );
@@ -197,6 +197,7 @@ pub fn training_pass(
         seed,
         iteration,
         guide_probability,
+        roulette: Roulette::Classic,
     };
     training_pass_with(scene, field, &pass, None)
 }
@@ -214,6 +215,8 @@ pub struct TrainingPass {
     pub iteration: u32,
     /// A fixed guide probability (`None`: the field's learned one, or the peer's).
     pub guide_probability: Option<f32>,
+    /// The roulette where no splitting policy decides.
+    pub roulette: Roulette,
 }
 
 /// [`training_pass`], and with `rrs` — a splitting mode and the render's passes so far — with
@@ -240,7 +243,7 @@ pub fn training_pass_with(
     render_pass_image(
         scene,
         Some(guiding),
-        continuations.as_ref(),
+        (pass.roulette, continuations.as_ref()),
         &mut image,
         (pass.spp, pass.seed, TRAINING_PASS | pass.iteration),
     );
@@ -272,15 +275,26 @@ pub enum Rrs {
     Ear,
     /// Efficiency-aware Russian roulette and splitting.
     Ears,
+    /// No roulette: paths go on to the longest path's depth.
+    None,
 }
 
 impl Rrs {
-    /// The library's splitting mode (`None`: classic).
+    /// The library's splitting mode (`None`: none, [`Rrs::roulette`] decides).
     pub fn mode(self) -> Option<SplittingMode> {
         match self {
-            Rrs::Classic => None,
+            Rrs::Classic | Rrs::None => None,
             Rrs::Ear => Some(SplittingMode::Roulette),
             Rrs::Ears => Some(SplittingMode::RouletteAndSplitting),
+        }
+    }
+
+    /// The roulette where no splitting policy decides (before a splitting render's first
+    /// estimates, and in the peer's paths).
+    pub fn roulette(self) -> Roulette {
+        match self {
+            Rrs::None => Roulette::Off,
+            _ => Roulette::Classic,
         }
     }
 
@@ -290,6 +304,7 @@ impl Rrs {
             Rrs::Classic => "",
             Rrs::Ear => "-ear",
             Rrs::Ears => "-ears",
+            Rrs::None => "-no-rr",
         }
     }
 }
@@ -408,9 +423,9 @@ pub struct Training<'a> {
     /// A fixed probability of sampling the guide instead of the BSDF; `None` uses the field's
     /// learned one.
     pub guide_probability: Option<f32>,
-    /// Roulette and splitting. Other than classic, unguided methods too train a field (which
-    /// learns only the continuation estimates: the guide is never drawn), sdguide's guided
-    /// methods learn them in the field they train, and the peer keeps classic roulette.
+    /// Roulette and splitting. With splitting (`ear`, `ears`), unguided methods too train a
+    /// field (which learns only the continuation estimates: the guide is never drawn), sdguide's
+    /// guided methods learn them in the field they train, and the peer plays classic roulette.
     pub rrs: Rrs,
 }
 
@@ -447,6 +462,7 @@ pub fn render(
         seed,
         guide_probability: training.guide_probability,
         mode,
+        roulette: rrs.roulette(),
     };
     let training_progress = |pass: u32, spp: u32| {
         progress(&format!("training, pass {pass}"), fraction(0), spp);
@@ -530,7 +546,7 @@ pub fn render(
         render_pass_image(
             scene,
             guiding,
-            continuations.as_ref(),
+            (schedule.roulette, continuations.as_ref()),
             &mut image,
             (1, seed, pass),
         );
@@ -542,7 +558,8 @@ pub fn render(
     let combined = combine(&passes).unwrap_or_else(|| final_image.clone());
     Ok(Outcome {
         method,
-        rrs: if schedule.mode.is_some() {
+        // The peer drops splitting and keeps classic roulette.
+        rrs: if schedule.mode == mode {
             rrs
         } else {
             Rrs::Classic
@@ -572,8 +589,10 @@ struct Schedule {
     size: (usize, usize),
     seed: u64,
     guide_probability: Option<f32>,
-    /// Roulette and splitting (`None`: classic).
+    /// Roulette and splitting (`None`: `roulette`).
     mode: Option<SplittingMode>,
+    /// The roulette where no splitting policy decides.
+    roulette: Roulette,
 }
 
 impl Schedule {
@@ -633,6 +652,7 @@ impl Schedule {
                 seed: self.seed,
                 iteration,
                 guide_probability: self.guide_probability,
+                roulette: self.roulette,
             };
             let rrs = self.mode.map(|mode| (mode, images.as_slice()));
             let image = training_pass_with(scene, field, &pass, rrs);

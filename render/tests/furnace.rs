@@ -9,7 +9,7 @@
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule, Splitting, SplittingMode};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::{Continuations, Guide, Guiding};
+use sdguide_render::integrator::{Continuations, Guide, Guiding, Roulette};
 use sdguide_render::passes::{PassImage, splitting};
 use sdguide_render::render::{
     TrainingPass, field_bounds, render_pass, render_pass_image, training_pass, training_pass_with,
@@ -120,6 +120,55 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
     }
 }
 
+/// Without roulette every path goes on to the longest depth: trained and rendered that way, the
+/// guided furnace converges, and so does the unguided one; and each spends more rays per sample
+/// than with classic roulette, which ends some paths early.
+#[test]
+fn furnace_without_roulette_converges_guided_and_not() {
+    let scene = furnace(ALBEDO, EMISSION);
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
+    for iteration in 0..5 {
+        let pass = TrainingPass {
+            size: SIZE,
+            spp: 1 << iteration,
+            seed: 3,
+            iteration,
+            guide_probability: None,
+            roulette: Roulette::Off,
+        };
+        training_pass_with(&scene, &mut field, &pass, None);
+    }
+    assert_eq!(field.stats().rejected.total(), 0);
+    let guided = |record| Guiding {
+        field: Guide::Sdguide(&field),
+        record,
+        guide_probability: None,
+    };
+    let mut dark = scene.clone();
+    dark.next_event = false;
+    for (name, guiding) in [("unguided", None), ("guided", Some(guided(false)))] {
+        let mut rays = Vec::new();
+        for roulette in [Roulette::Classic, Roulette::Off] {
+            let mut image = PassImage::new(SIZE.0, SIZE.1);
+            render_pass_image(&scene, guiding, (roulette, None), &mut image, (SPP, 11, 0));
+            assert_converges(&image.mean(), &format!("{name}, {roulette:?}"));
+            // Without light samples a path's rays are its intersections: in the closed
+            // furnace without roulette a path traces its camera ray and 10 bounces, with it
+            // fewer. Without roulette a path ends early only at a direction with f = 0 (at the
+            // horizon, or below the surface for the guide times the cosine), which is rare.
+            let mut image = PassImage::new(SIZE.0, SIZE.1);
+            render_pass_image(&dark, guiding, (roulette, None), &mut image, (SPP, 12, 0));
+            rays.push(image.rays / (SIZE.0 * SIZE.1) as f64 / f64::from(SPP));
+        }
+        assert!((10.99..=11.0).contains(&rays[1]), "{name}: {rays:?}");
+        assert!(rays[0] < 0.9 * rays[1], "{name}: {rays:?}");
+    }
+}
+
 /// Without next-event estimation the emission a path hits counts in full (no MIS weight), and
 /// the surface-aware guide must still find all of it: guided and unguided, l1 and l2.
 #[test]
@@ -224,6 +273,7 @@ fn furnace_with_roulette_and_splitting_converges() {
             seed: 3,
             iteration,
             guide_probability: None,
+            roulette: Roulette::Classic,
         };
         let image = training_pass_with(&scene, &mut field, &pass, Some((mode, &passes)));
         passes.push(image);
@@ -269,7 +319,7 @@ fn furnace_with_roulette_and_splitting_converges() {
         render_pass_image(
             &scene,
             Some(guiding),
-            Some(&continuations),
+            (Roulette::Classic, Some(&continuations)),
             &mut image,
             (SPP, 7, 0),
         );
