@@ -54,12 +54,44 @@ fn several_seeds_write_every_image_and_one_summary() {
 }
 
 #[test]
+fn without_roulette_every_method_runs_beside_its_unguided_baseline() {
+    let out = std::env::temp_dir().join(format!("sdguide-cli-rrs-{}", std::process::id()));
+    let run = render(&out, &["--scene", "door", "--rule", "l2", "--rrs", "none"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // Unguided with classic roulette stays the first row, the baseline of the ratios.
+    let rows: Vec<&str> = report
+        .lines()
+        .filter(|l| l.starts_with("| unguided") || l.starts_with("| guided"))
+        .map(|l| l.split('|').nth(1).unwrap().trim())
+        .collect();
+    assert_eq!(
+        rows,
+        ["unguided", "unguided-no-rr", "guided-l2-no-rr"],
+        "{report}"
+    );
+    assert!(
+        report.contains("| per sample vs unguided, same roulette |"),
+        "{report}"
+    );
+    for method in ["unguided", "unguided-no-rr", "guided-l2-no-rr"] {
+        assert!(out.join(format!("door-{method}.exr")).is_file(), "{method}");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
 fn bad_options_are_refused_with_a_message() {
     let out = std::env::temp_dir().join(format!("sdguide-cli-bad-{}", std::process::id()));
     for args in [
         &["--seeds", "0"][..],
         &["--scene", "nowhere"],
         &["--rule", "l3"],
+        &["--rrs", "never"],
         &["--scene", "all", "--probe", "x.sdgc"],
         &["--scene", "all", "--cache", "x.sdgc"],
     ] {

@@ -66,6 +66,35 @@ fn trained_in(scene: &Scene, rule: LeafRule) -> GuidingField {
     field
 }
 
+/// A field trained on `scene` like [`trained_in`]'s with the default rule, its paths playing
+/// `roulette`, or with `mode` roulette and splitting by the field's own estimates; and the
+/// training passes' images.
+fn trained_with(
+    scene: &Scene,
+    roulette: Roulette,
+    mode: Option<SplittingMode>,
+) -> (GuidingField, Vec<PassImage>) {
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(field_bounds(scene), config).unwrap();
+    let mut passes = Vec::new();
+    for iteration in 0..5 {
+        let pass = TrainingPass {
+            size: SIZE,
+            spp: 1 << iteration,
+            seed: 3,
+            iteration,
+            guide_probability: None,
+            roulette,
+        };
+        let image = training_pass_with(scene, &mut field, &pass, mode.map(|m| (m, &passes[..])));
+        passes.push(image);
+    }
+    (field, passes)
+}
+
 fn assert_converges(image: &Image, what: &str) {
     // Paths are cut after 10 bounces: the part lost, albedo¹¹·L ≈ 2.5e-6, is far below the
     // statistical error.
@@ -126,22 +155,7 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
 #[test]
 fn furnace_without_roulette_converges_guided_and_not() {
     let scene = furnace(ALBEDO, EMISSION);
-    let config = GuidingConfig {
-        spatial_threshold: 1000.0,
-        ..GuidingConfig::default()
-    };
-    let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-    for iteration in 0..5 {
-        let pass = TrainingPass {
-            size: SIZE,
-            spp: 1 << iteration,
-            seed: 3,
-            iteration,
-            guide_probability: None,
-            roulette: Roulette::Off,
-        };
-        training_pass_with(&scene, &mut field, &pass, None);
-    }
+    let (field, _) = trained_with(&scene, Roulette::Off, None);
     assert_eq!(field.stats().rejected.total(), 0);
     let guided = |record| Guiding {
         field: Guide::Sdguide(&field),
@@ -259,25 +273,8 @@ fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
 #[test]
 fn furnace_with_roulette_and_splitting_converges() {
     let scene = furnace(ALBEDO, EMISSION);
-    let config = GuidingConfig {
-        spatial_threshold: 1000.0,
-        ..GuidingConfig::default()
-    };
     let mode = SplittingMode::RouletteAndSplitting;
-    let mut field = GuidingField::new(field_bounds(&scene), config).unwrap();
-    let mut passes = Vec::new();
-    for iteration in 0..5 {
-        let pass = TrainingPass {
-            size: SIZE,
-            spp: 1 << iteration,
-            seed: 3,
-            iteration,
-            guide_probability: None,
-            roulette: Roulette::Classic,
-        };
-        let image = training_pass_with(&scene, &mut field, &pass, Some((mode, &passes)));
-        passes.push(image);
-    }
+    let (field, passes) = trained_with(&scene, Roulette::Classic, Some(mode));
     let estimated = field
         .cells()
         .filter(|c| field.continuation(c.bounds.center()).count >= 16)
