@@ -8,7 +8,7 @@
 use crate::filter::hash_jitter;
 use crate::moments::weights;
 use crate::quadtree::{
-    DirectionalTree, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes, tallies,
+    DirectionalTree, GRID_BYTES, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes, tallies,
 };
 use crate::rule::mixture_value;
 use crate::spatial::SpatialTree;
@@ -425,10 +425,11 @@ impl GuidingField {
     }
 }
 
-/// Bytes a directional tree costs besides its interior nodes: the struct itself and the sums of
-/// the one leaf that is not paid for by a node (`3·nodes + 1` leaves).
+/// Bytes a directional tree costs besides its interior nodes: the struct itself, its sampling
+/// tree's grid, and the sums of the one leaf that is not paid for by a node (`3·nodes + 1`
+/// leaves).
 const fn tree_fixed_bytes(deferred: bool) -> u64 {
-    size_of::<DirectionalTree>() as u64 + leaf_bytes(deferred)
+    (size_of::<DirectionalTree>() + GRID_BYTES) as u64 + leaf_bytes(deferred)
 }
 
 /// The heap and inline bytes of one spatial leaf's directional tree.

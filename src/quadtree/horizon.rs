@@ -539,9 +539,9 @@ impl SurfaceTree {
         let d = self.tree.descend::<true>(u);
         let at = Cursor::inside(d.cell, d.depth);
         if d.resume {
-            return self.sample_resumed(u, d, at);
+            return self.sample_resumed(d, at);
         }
-        let (point, near_border) = place(u, d.a, d.w, d.cell, d.depth);
+        let (point, near_border) = place(d.u, d.a, d.w, d.cell, d.depth);
         (point, d.pdf, near_border, at.centre())
     }
 
@@ -549,13 +549,13 @@ impl SurfaceTree {
     /// (Inside the guide's leaf, so the guide's tree is not read.)
     #[cold]
     #[inline(never)]
-    fn sample_resumed(&self, u: Vec2, d: Descent, at: Cursor) -> (Vec2, f32, bool, Vec2) {
+    fn sample_resumed(&self, d: Descent, at: Cursor) -> (Vec2, f32, bool, Vec2) {
         let draw = Draw {
             a: d.a,
             w: d.w,
             pdf: d.pdf,
         };
-        self.tree.sample_surface_from(self.normal, u, draw, at)
+        self.tree.sample_surface_from(self.normal, d.u, draw, at)
     }
 
     /// [`SamplingTree::pdf_surface`] for this normal, through the stored product.
@@ -591,7 +591,7 @@ impl SurfaceTree {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::quadtree::testing::{random_sampling_tree, uniform};
+    use crate::quadtree::testing::{assert_chi_square, random_sampling_tree, uniform};
     use crate::sphere::square_to_direction;
 
     #[test]
@@ -855,33 +855,7 @@ mod tests {
             let (i, j) = ((s.x * bins as f32) as u32, (s.y * bins as f32) as u32);
             observed[(j * bins + i) as usize] += 1;
         }
-        // Pool the bins expecting fewer than 5 draws, as the chi-square approximation asks.
-        let (mut chi2, mut dof, mut pooled) = (0.0, 0usize, (0.0, 0.0));
-        for (&o, &p) in observed.iter().zip(&expected) {
-            let e = p * draws as f64;
-            if e < 5.0 {
-                pooled = (pooled.0 + o as f64, pooled.1 + e);
-            } else {
-                chi2 += (o as f64 - e).powi(2) / e;
-                dof += 1;
-            }
-        }
-        if pooled.1 >= 5.0 {
-            chi2 += (pooled.0 - pooled.1).powi(2) / pooled.1;
-            dof += 1;
-        } else {
-            // A Poisson count of mean below 5 exceeds 20 with probability below 1e-6.
-            assert!(pooled.0 <= 20.0, "{pooled:?}");
-        }
-        assert!(dof > 150, "{dof} bins");
-        // Wilson–Hilferty: exceeded with probability ~1e-6 by a correct sampler.
-        let k = (dof - 1) as f64;
-        let a = 2.0 / (9.0 * k);
-        let bound = k * (1.0 - a + 4.75 * a.sqrt()).powi(3);
-        assert!(
-            chi2 < bound,
-            "n = {n}: chi2 = {chi2}, bound = {bound}, {dof} bins"
-        );
+        assert_chi_square(&observed, &expected, draws, 150, &format!("n = {n}"));
     }
 
     #[test]

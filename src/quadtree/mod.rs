@@ -3,7 +3,9 @@
 //! Each spatial leaf owns one [`DirectionalTree`], double-buffered as the design asks:
 //!
 //! - a [`SamplingTree`] (`sampling`): read-only during an iteration, it holds for each node the
-//!   probability of each of its four quadrants, and the cuts of `u` that `sample` descends by.
+//!   probability of each of its four quadrants, its first four levels flattened into a grid
+//!   that `pdf` reads in one load and `sample` picks from by two tables, and the cuts of `u`
+//!   that `sample` descends by below the grid.
 //!   `sample` and `pdf` descend it without locks or allocation.
 //! - a [`RecordingTree`] (`recording`): the topology for the current iteration with atomic
 //!   moments and quadrant sums per leaf. Recording descends it and adds to its leaves; interior
@@ -32,7 +34,7 @@ mod surfaces;
 pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineOutcome, RefineParams};
-pub(crate) use sampling::{SamplingNode, SamplingTree};
+pub(crate) use sampling::{GRID_BYTES, SamplingNode, SamplingTree};
 pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, tallies};
 
 use crate::guide_probability::GuideSelection;
@@ -263,6 +265,44 @@ mod testing {
         tree
     }
 
+    /// Asserts that `observed` counts of `draws` draws fit bin probabilities `expected` by
+    /// Pearson's chi-square, over at least `min_bins` bins: the bins expecting fewer than 5
+    /// draws pooled into one, as the approximation asks, and the bound one a correct sampler
+    /// exceeds with probability about 10⁻⁶ (Wilson–Hilferty, z = 4.75).
+    pub(super) fn assert_chi_square(
+        observed: &[u64],
+        expected: &[f64],
+        draws: u64,
+        min_bins: usize,
+        what: &str,
+    ) {
+        let (mut chi2, mut dof, mut pooled) = (0.0, 0usize, (0.0, 0.0));
+        for (&o, &p) in observed.iter().zip(expected) {
+            let e = p * draws as f64;
+            if e < 5.0 {
+                pooled = (pooled.0 + o as f64, pooled.1 + e);
+            } else {
+                chi2 += (o as f64 - e).powi(2) / e;
+                dof += 1;
+            }
+        }
+        if pooled.1 >= 5.0 {
+            chi2 += (pooled.0 - pooled.1).powi(2) / pooled.1;
+            dof += 1;
+        } else {
+            // A Poisson count of mean below 5 exceeds 20 with probability below 1e-6.
+            assert!(pooled.0 <= 20.0, "{what}: {pooled:?}");
+        }
+        assert!(dof > min_bins, "{what}: {dof} bins");
+        let k = (dof - 1) as f64;
+        let a = 2.0 / (9.0 * k);
+        let bound = k * (1.0 - a + 4.75 * a.sqrt()).powi(3);
+        assert!(
+            chi2 < bound,
+            "{what}: chi2 = {chi2}, bound = {bound}, {dof} bins"
+        );
+    }
+
     /// A sampling tree with a random topology, and quadrant masses spread over nine orders
     /// of magnitude.
     pub(super) fn random_sampling_tree(seed: u64) -> SamplingTree {
@@ -293,8 +333,9 @@ mod tests {
 
     #[test]
     fn what_a_query_reads_shares_one_cache_line() {
-        // The sampling tree's pointers, the product keys and the products' pointer.
-        assert_eq!(std::mem::offset_of!(DirectionalTree, surfaces), 32);
+        // The sampling tree's pointers (its nodes, and its grid with the cuts), the product
+        // keys and the products' pointer.
+        assert_eq!(std::mem::offset_of!(DirectionalTree, surfaces), 24);
         assert_eq!(std::mem::align_of::<DirectionalTree>(), 64);
         let s = Surfaces::default();
         let base = std::ptr::from_ref(&s) as usize;
