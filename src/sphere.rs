@@ -93,6 +93,12 @@ fn normalize_rescaled(d: Vec3) -> Option<Vec3> {
 #[inline]
 pub fn square_of(d: Vec3) -> Option<Vec2> {
     let len2 = d.length_squared();
+    // A direction already unit to rounding (what renderers pass, and what `sample` returns)
+    // skips the square root and the division: the map is as accurate for it (the round trip
+    // below is tested through here), and the pdf's chain of dependent steps is shorter.
+    if (len2 - 1.0).abs() <= 4.0 * f32::EPSILON {
+        return Some(direction_to_square(d));
+    }
     if len2 > f32::MIN_POSITIVE && len2.is_finite() {
         return Some(direction_to_square(d / len2.sqrt()));
     }
@@ -166,6 +172,26 @@ fn atan01(t: f32) -> f32 {
     ((p01 + p23 * t4) + (p45 + p67 * t4) * t8) * t
 }
 
+/// `(sin φ, cos φ)` for the azimuth `φ = π/4·(1 + t)`, `t ∈ [−1, 1]`, to within 2·10⁻⁷ (tested
+/// against `f64`): `sin θ` and `cos θ` of the angle `θ = π/4·(1 − |t|) ≤ π/4` to the nearer axis,
+/// by their Taylor polynomials of degree 9 and 8 (remainders below 2·10⁻⁹ and 3·10⁻⁸ there),
+/// swapped past the diagonal. Inline, where a call to the C library's `sincosf` is a call the
+/// sample's chain of steps waits on; and exact on the axes (`t = ±1` gives 0 and 1), where
+/// `sincosf(π/2)` gives `cos` a residue of −4·10⁻⁸ that puts a cell corner on the axis a hair
+/// below a horizon through it.
+#[inline]
+fn azimuth_sin_cos(t: f32) -> (f32, f32) {
+    let theta = FRAC_PI_4 * (1.0 - t.abs());
+    let t2 = theta * theta;
+    let sin = theta
+        * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 / 362_880.0))));
+    let cos = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 / 40_320.0)));
+    // Past the diagonal θ runs from the y axis: sin φ = cos θ. (A select: t's sign is a coin
+    // flip over the sphere.)
+    let past = t >= 0.0;
+    (select(past, sin, cos), select(past, cos, sin))
+}
+
 /// Maps a point of the unit square to its unit direction.
 ///
 /// ```
@@ -181,9 +207,9 @@ pub fn square_to_direction(s: Vec2) -> Vec3 {
     let (up, vp) = (u.abs(), v.abs());
     let sd = 1.0 - (up + vp);
     let r = 1.0 - sd.abs();
-    let phi = if r == 0.0 { 1.0 } else { (vp - up) / r + 1.0 } * FRAC_PI_4;
+    let t = if r == 0.0 { 0.0 } else { (vp - up) / r };
     let z = (1.0 - r * r).copysign(sd);
-    let (sin_phi, cos_phi) = phi.sin_cos();
+    let (sin_phi, cos_phi) = azimuth_sin_cos(t);
     let k = r * (2.0 - r * r).max(0.0).sqrt();
     Vec3::new(cos_phi.copysign(u) * k, sin_phi.copysign(v) * k, z)
 }
@@ -382,6 +408,24 @@ mod tests {
         let worst = max_round_trip_error(random.chain(special));
         // Keep a factor of two between what is measured and what sampling relies on.
         assert!(worst < 0.5 * ROUND_TRIP_BOUND, "round trip error {worst:e}");
+    }
+
+    #[test]
+    fn the_azimuths_sin_cos_matches_f64_and_is_exact_on_the_axes() {
+        let n = 1_000_000;
+        let mut worst = 0.0f64;
+        for i in 0..=n {
+            let t = 2.0 * i as f32 / n as f32 - 1.0;
+            let (sin, cos) = azimuth_sin_cos(t);
+            let phi = std::f64::consts::FRAC_PI_4 * (1.0 + f64::from(t));
+            worst = worst
+                .max((f64::from(sin) - phi.sin()).abs())
+                .max((f64::from(cos) - phi.cos()).abs());
+        }
+        // Remainders below 3e-8 and a few ulps of 1 in the evaluation.
+        assert!(worst < 2e-7, "{worst:e}");
+        assert_eq!(azimuth_sin_cos(-1.0), (0.0, 1.0));
+        assert_eq!(azimuth_sin_cos(1.0), (1.0, 0.0));
     }
 
     #[test]
