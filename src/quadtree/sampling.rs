@@ -109,10 +109,10 @@ impl Grid {
                 }
             }
         }
-        let row_mass: Vec<f64> = mass.chunks(GRID_SIDE).map(|r| r.iter().sum()).collect();
-        grid.rows = starts(&row_mass.try_into().expect("sixteen rows"));
-        for (y, row) in mass.chunks(GRID_SIDE).enumerate() {
-            grid.columns[y] = starts(row.try_into().expect("sixteen cells"));
+        let (rows, _) = mass.as_chunks::<GRID_SIDE>();
+        grid.rows = starts(&std::array::from_fn(|y| rows[y].iter().sum()));
+        for (columns, row) in grid.columns.iter_mut().zip(rows) {
+            *columns = starts(row);
         }
         grid
     }
