@@ -378,12 +378,12 @@ impl SamplingTree {
         let mut node = usize::from(grid.node[k]);
         let resume = node != usize::from(NO_CHILD)
             && loop {
-                // The chain from one level to the next: load the cuts (with the children), compare,
-                // shift out the child.
-                // Branch-free: with random `u` each choice is a coin flip no predictor can learn, so
-                // choices become indices and selects, never jumps. The lower/upper choice is made
-                // for both columns at once, off the x chain. `a`, `w` and the density follow off
-                // the chain.
+                // The chain from one level to the next: load the cuts (with the children),
+                // compare, shift out the child.
+                // Branch-free: with random `u` each choice is a coin flip no predictor can learn,
+                // so choices become indices and selects, never jumps. The lower/upper choice is
+                // made for both columns at once, off the x chain. `a`, `w` and the density follow
+                // off the chain.
                 let c = &grid.cuts[node];
                 let ix = usize::from(u.x >= c.x);
                 let up = [u.y >= c.y[0], u.y >= c.y[1]];
