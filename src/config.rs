@@ -63,9 +63,9 @@ pub struct GuidingConfig {
     pub max_spatial_nodes: u32,
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
     /// footprint above it is refused, and each directional tree is held to its share of what
-    /// the trees' fixed parts (about 3 KB each) leave of it (`bytes / (trees · 336 bytes)`
-    /// interior nodes, 336 bytes bounding what one node costs, 528 under
-    /// [`DirectionalFilter::DeferredBox`]); refusals are counted. The
+    /// the spatial tree and the trees' fixed parts (about 3 KB each) leave of it
+    /// (`left / (trees · 336 bytes)` interior nodes, 336 bytes bounding what one node costs,
+    /// 528 under [`DirectionalFilter::DeferredBox`]); refusals are counted. The
     /// products stored for frequent surface normals (see [`Sample::normal`](crate::Sample::normal))
     /// count too, and are dropped, largest first, where they would take the footprint above
     /// it. Must be ≥ 64 KiB.

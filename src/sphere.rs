@@ -182,10 +182,10 @@ fn atan01(t: f32) -> f32 {
 #[inline]
 fn azimuth_sin_cos(t: f32) -> (f32, f32) {
     let theta = FRAC_PI_4 * (1.0 - t.abs());
-    let t2 = theta * theta;
+    let x2 = theta * theta;
     let sin = theta
-        * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 / 362_880.0))));
-    let cos = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 / 40_320.0)));
+        * (1.0 + x2 * (-1.0 / 6.0 + x2 * (1.0 / 120.0 + x2 * (-1.0 / 5040.0 + x2 / 362_880.0))));
+    let cos = 1.0 + x2 * (-0.5 + x2 * (1.0 / 24.0 + x2 * (-1.0 / 720.0 + x2 / 40_320.0)));
     // Past the diagonal θ runs from the y axis: sin φ = cos θ. (A select: t's sign is a coin
     // flip over the sphere.)
     let past = t >= 0.0;

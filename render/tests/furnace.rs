@@ -12,7 +12,7 @@ use sdguide_render::image::Image;
 use sdguide_render::integrator::{Continuations, Guide, Guiding, Roulette};
 use sdguide_render::passes::{PassImage, splitting};
 use sdguide_render::render::{
-    TrainingPass, field_bounds, render_pass, render_pass_image, training_pass, training_pass_with,
+    TrainingPass, field_bounds, render_pass, render_pass_image, training_pass_with,
 };
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
@@ -54,27 +54,20 @@ fn render_in(scene: &Scene, field: Option<Guide<'_>>, seed: u64) -> Image {
 
 /// A field trained on `scene` with `rule`: five passes of 1, 2, …, 16 spp, cells split early.
 fn trained_in(scene: &Scene, rule: LeafRule) -> GuidingField {
-    let config = GuidingConfig {
-        rule,
-        spatial_threshold: 1000.0,
-        ..GuidingConfig::default()
-    };
-    let mut field = GuidingField::new(field_bounds(scene), config).unwrap();
-    for pass in 0..5 {
-        training_pass(scene, &mut field, SIZE, 1 << pass, 3, pass, None);
-    }
-    field
+    trained_with(scene, rule, Roulette::Classic, None).0
 }
 
-/// A field trained on `scene` like [`trained_in`]'s with the default rule, its paths playing
-/// `roulette`, or with `mode` roulette and splitting by the field's own estimates; and the
-/// training passes' images.
+/// A field trained on `scene` with `rule` as [`trained_in`]'s, its paths playing `roulette`,
+/// or with `mode` roulette and splitting by the field's own estimates; and the training passes'
+/// images.
 fn trained_with(
     scene: &Scene,
+    rule: LeafRule,
     roulette: Roulette,
     mode: Option<SplittingMode>,
 ) -> (GuidingField, Vec<PassImage>) {
     let config = GuidingConfig {
+        rule,
         spatial_threshold: 1000.0,
         ..GuidingConfig::default()
     };
@@ -155,7 +148,7 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
 #[test]
 fn furnace_without_roulette_converges_guided_and_not() {
     let scene = furnace(ALBEDO, EMISSION);
-    let (field, _) = trained_with(&scene, Roulette::Off, None);
+    let (field, _) = trained_with(&scene, LeafRule::default(), Roulette::Off, None);
     assert_eq!(field.stats().rejected.total(), 0);
     let guided = |record| Guiding {
         field: Guide::Sdguide(&field),
@@ -249,6 +242,7 @@ fn the_glass_furnace_camera_sees_the_sphere() {
 #[test]
 fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
     use sdguide_render::openpgl;
+    use sdguide_render::render::training_pass;
     let scene = furnace(ALBEDO, EMISSION);
     for cosine_product in [false, true] {
         let mut guide = openpgl::Guide::new(field_bounds(&scene), cosine_product, 2).unwrap();
@@ -274,7 +268,7 @@ fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
 fn furnace_with_roulette_and_splitting_converges() {
     let scene = furnace(ALBEDO, EMISSION);
     let mode = SplittingMode::RouletteAndSplitting;
-    let (field, passes) = trained_with(&scene, Roulette::Classic, Some(mode));
+    let (field, passes) = trained_with(&scene, LeafRule::default(), Roulette::Classic, Some(mode));
     let estimated = field
         .cells()
         .filter(|c| field.continuation(c.bounds.center()).count >= 16)
