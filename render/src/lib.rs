@@ -14,6 +14,7 @@
 #![deny(unsafe_code)]
 
 pub mod bvh;
+pub mod cost;
 pub mod geometry;
 pub mod image;
 pub mod integrator;

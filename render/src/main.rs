@@ -9,11 +9,13 @@
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
 //!     [--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)]
 //! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
+//! cargo run --release -p sdguide-render -- --scene door --cost out/render/door-guided-l2.sdgc [--rounds 30]
 //! cargo run --release -p sdguide-render -- --scene door --reference --spp 8192 --time 0
 //! ```
 
 use indicatif::{ProgressBar, ProgressStyle};
 use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement};
+use sdguide_render::cost::paired_cost;
 use sdguide_render::image::{Image, side_by_side, write_png};
 use sdguide_render::reference;
 use sdguide_render::render::{Budget, Method, Outcome, Rrs, Training, render};
@@ -33,7 +35,7 @@ const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caus
 [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
 [--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)] [--reference] \
-[--probe CACHE]";
+[--probe CACHE] [--cost CACHE [--rounds N]]";
 
 struct Args {
     /// The scenes to render, in order.
@@ -59,6 +61,10 @@ struct Args {
     nee: bool,
     /// A trained cache to probe instead of rendering.
     probe: Option<PathBuf>,
+    /// A trained cache whose guided sample's cost to measure instead of rendering.
+    cost: Option<PathBuf>,
+    /// Rounds of the cost measurement.
+    rounds: u32,
     /// The Open PGL methods to run: with the cosine product or not.
     peers: Vec<bool>,
     /// Roulette and splitting variants, each run with every method (the peer: those without
@@ -92,6 +98,8 @@ fn parse() -> Result<Args, String> {
         spatial_threshold: GuidingConfig::default().spatial_threshold,
         nee: true,
         probe: None,
+        cost: None,
+        rounds: 30,
         peers: if cfg!(feature = "openpgl") {
             vec![false, true]
         } else {
@@ -145,6 +153,13 @@ fn parse() -> Result<Args, String> {
             "--threads" => a.threads = Some(number(&flag, &value)?),
             "--seed" => a.seed = number(&flag, &value)?,
             "--probe" => a.probe = Some(PathBuf::from(value)),
+            "--cost" => a.cost = Some(PathBuf::from(value)),
+            "--rounds" => {
+                a.rounds = number(&flag, &value)?;
+                if !(1..=10_000).contains(&a.rounds) {
+                    return Err(format!("bad value for --rounds: {value}"));
+                }
+            }
             "--nee" => {
                 a.nee = match value.as_str() {
                     "on" => true,
@@ -309,6 +324,16 @@ fn run() -> Result<(), String> {
         let field = GuidingField::load_from_path(path)
             .map_err(|e| format!("cannot load the cache {}: {e}", path.display()))?;
         print!("{}", probe_report(scene, &field, &args));
+        return Ok(());
+    }
+
+    if let Some(path) = &args.cost {
+        let [scene] = &scenes[..] else {
+            return Err("--cost needs a single scene".into());
+        };
+        let field = GuidingField::load_from_path(path)
+            .map_err(|e| format!("cannot load the cache {}: {e}", path.display()))?;
+        print!("{}", cost_report(scene, &field, path, &args));
         return Ok(());
     }
 
@@ -575,6 +600,38 @@ fn probe_report(scene: &Scene, field: &GuidingField, args: &Args) -> String {
             100.0 * p.surface_below,
             100.0 * p.plain_to_light,
             100.0 * p.surface_to_light
+        );
+    }
+    r
+}
+
+fn cost_report(scene: &Scene, field: &GuidingField, path: &std::path::Path, args: &Args) -> String {
+    const SPP: u32 = 2;
+    let cost = paired_cost(scene, field, (args.width, args.height), SPP, args.rounds);
+    let mut r = format!(
+        "# What a guided sample costs in `{}`, guided by {}\n\n\
+         {} rounds of two passes of {SPP} spp at {}×{} on {} threads, one unguided and one \
+         guided by the cache (its learned guide probabilities, classic roulette), the unguided \
+         one first in every other round.\n\n",
+        scene.name,
+        path.display(),
+        args.rounds,
+        args.width,
+        args.height,
+        rayon::current_num_threads(),
+    );
+    if let Some([lo, q1, median, q3, hi]) = cost.spread() {
+        let mut unguided: Vec<f64> = cost.unguided.iter().map(|t| t.as_secs_f64()).collect();
+        unguided.sort_by(f64::total_cmp);
+        let samples = f64::from(args.rounds) * f64::from(SPP) * (args.width * args.height) as f64;
+        let _ = writeln!(
+            r,
+            "Guided pass ÷ unguided pass of the same round: median **{median:.3}** (quartiles \
+             {q1:.3}–{q3:.3}, range {lo:.3}–{hi:.3}). Unguided pass: {:.3} s (median). Rays per \
+             sample: unguided {:.2}, guided {:.2}.",
+            unguided[unguided.len() / 2],
+            cost.rays[0] / samples,
+            cost.rays[1] / samples,
         );
     }
     r
