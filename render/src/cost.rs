@@ -31,8 +31,8 @@ impl Cost {
     pub fn spread(&self) -> Option<[f64; 5]> {
         let mut r = self.ratios.clone();
         r.sort_by(f64::total_cmp);
-        let at = |q: usize| r.get(q * (r.len() - 1) / 4).copied();
-        Some([at(0)?, at(1)?, at(2)?, at(3)?, at(4)?])
+        let last = r.len().checked_sub(1)?;
+        Some([0, 1, 2, 3, 4].map(|q| r[q * last / 4]))
     }
 }
 
@@ -121,5 +121,10 @@ mod tests {
         assert!(cost.rays.iter().all(|&r| r >= samples), "{:?}", cost.rays);
         let spread = cost.spread().expect("five rounds");
         assert!(spread.is_sorted(), "{spread:?}");
+        let none = Cost {
+            ratios: Vec::new(),
+            ..cost
+        };
+        assert_eq!(none.spread(), None);
     }
 }
