@@ -39,8 +39,9 @@ pub struct GuidingConfig {
     ///
     /// A larger `c` gives fewer, larger cells: a smaller field, whose queries cost a render
     /// less (they move between fewer trees, which stay in the core's caches), and a guide that
-    /// follows the light's change with position less closely. On the demo's `door` scene four times the default made a guided sample
-    /// about 7% cheaper and 4% noisier (`docs/render.md`).
+    /// follows the light's change with position less closely. On the demo's `door` scene four
+    /// times the default made a guided sample about 7% cheaper and 4% noisier
+    /// (`docs/render.md`).
     pub spatial_threshold: f32,
     /// Which directional cells split at refine (default [`Refinement::VarianceGain`], chosen
     /// with the quality harness: see `docs/quality.md`).
