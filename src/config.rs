@@ -1,7 +1,8 @@
 //! The field's configuration: every knob, its default, and the checks that reject absurd values.
 
 use crate::guide_probability::{
-    DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY,
+    DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
+    MAX_GUIDE_PROBABILITY,
 };
 use crate::{DirectionalFilter, LeafRule, Refinement, SpatialFilter};
 use serde::{Deserialize, Serialize};
@@ -99,6 +100,17 @@ pub struct GuidingConfig {
     /// alone, whatever the guide learned wrong. Must be in
     /// `[0.5, `[`MAX_GUIDE_PROBABILITY`](crate::guide_probability::MAX_GUIDE_PROBABILITY)`]`.
     pub max_guide_probability: f32,
+    /// What sampling the guide adds to the cost of a path vertex, relative to a vertex that
+    /// samples only the BSDF (default `Some(0.25)`, measured in the demo renderer; see
+    /// [`guide_probability`](crate::guide_probability)). A spatial leaf whose guide does not
+    /// lower the variance of its vertices' estimates below `1/(1 + guide_cost)` of BSDF
+    /// sampling's turns the guide off: its guide probability reads 0 until an iteration's
+    /// samples show the guide paying again. A leaf where continuations were recorded
+    /// ([`GuidingField::record_continuation`](crate::GuidingField::record_continuation))
+    /// keeps its guide on. Set it to what a guided vertex costs in your
+    /// renderer (less where shading is expensive); `Some(0.0)` turns the guide off only where
+    /// it does not lower the variance at all, `None` never. Must be finite and in `[0, 100]`.
+    pub guide_cost: Option<f32>,
 }
 
 impl Default for GuidingConfig {
@@ -118,6 +130,7 @@ impl Default for GuidingConfig {
             spatial_filter: SpatialFilter::Nearest,
             directional_filter: DirectionalFilter::Box,
             max_guide_probability: DEFAULT_MAX_GUIDE_PROBABILITY,
+            guide_cost: Some(DEFAULT_GUIDE_COST),
         }
     }
 }
@@ -200,6 +213,13 @@ impl GuidingConfig {
             "max_guide_probability",
             self.max_guide_probability.to_string(),
             "a number in [0.5, 0.95]",
+        )?;
+        check(
+            self.guide_cost
+                .is_none_or(|c| (0.0..=MAX_GUIDE_COST).contains(&c)),
+            "guide_cost",
+            format!("{:?}", self.guide_cost),
+            "None, or a number in [0, 100]",
         )
     }
 }

@@ -78,6 +78,11 @@ impl<'a> DirectionalDistribution<'a> {
     /// [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) (see
     /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from
     /// samples recorded with [`Sample::with_mixture`](crate::Sample::with_mixture).
+    ///
+    /// 0 where the field turned the guide off, since it did not pay for its
+    /// [`guide_cost`](crate::GuidingConfig::guide_cost) there: sample the BSDF alone, whose pdf
+    /// is then the mixture's, and skip the guide's `pdf` — except in a pass that records,
+    /// where the recorded mixture terms still need it.
     #[inline]
     pub fn guide_probability(&self) -> f32 {
         self.guide_probability

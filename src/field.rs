@@ -303,6 +303,7 @@ impl GuidingField {
             max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
             prior_samples: f64::from(c.prior_samples),
             max_guide_probability: c.max_guide_probability,
+            guide_cost: c.guide_cost,
             deferred,
         };
         let outcomes: Vec<RefineOutcome> = self
@@ -377,6 +378,7 @@ impl GuidingField {
             s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
             s.surface_products += t.surfaces.products.len() as u64;
             s.surface_product_nodes += t.surfaces.node_count() as u64;
+            s.guides_off += u64::from(t.selection.off());
             s.continuations_recorded = s
                 .continuations_recorded
                 .saturating_add(t.continuations.recorded().count);

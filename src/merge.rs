@@ -95,7 +95,8 @@ impl GuidingField {
             if a.recording.nodes != b.recording.nodes {
                 return differs(format!("the recording topologies of tree {i} differ"));
             }
-            if a.selection.probability != b.selection.probability {
+            if (a.selection.learned, a.selection.off()) != (b.selection.learned, b.selection.off())
+            {
                 return differs(format!("the guide probabilities of tree {i} differ"));
             }
             if a.continuations.estimate != b.continuations.estimate {

@@ -84,7 +84,9 @@ pub struct MixtureTerms {
 
 impl Sample {
     /// The sample with its mixture terms: the integrand `L·f_s·|cos θ|`, and the BSDF's and
-    /// the guide's pdfs of the direction. `pdf` stays the mixture pdf it was drawn with.
+    /// the guide's pdfs of the direction. `pdf` stays the mixture pdf it was drawn with. Pass
+    /// the guide's pdf also where the guide probability is 0 (the BSDF drew the direction):
+    /// from it the cell learns whether the guide pays again.
     ///
     /// ```
     /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};

@@ -91,6 +91,9 @@ pub struct FieldStats {
     pub surface_products: u64,
     /// Nodes of those products.
     pub surface_product_nodes: u64,
+    /// Spatial leaves whose guide is off: it did not pay for its cost there in the last
+    /// iteration that could tell (see [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost)).
+    pub guides_off: u64,
 }
 
 /// Lock-free rejection counters (bad input is rare, so they are not contended).

@@ -257,7 +257,7 @@ fn any_jitter_is_recorded_into_a_valid_cell() {
 #[test]
 fn absurd_configs_and_bounds_are_typed_errors() {
     let ok = GuidingConfig::default();
-    let cases: [(GuidingConfig, &str); 17] = [
+    let cases: [(GuidingConfig, &str); 20] = [
         (
             GuidingConfig {
                 spatial_threshold: NAN,
@@ -377,7 +377,36 @@ fn absurd_configs_and_bounds_are_typed_errors() {
             },
             "max_guide_probability",
         ),
+        (
+            GuidingConfig {
+                guide_cost: Some(-0.1),
+                ..ok.clone()
+            },
+            "guide_cost",
+        ),
+        (
+            GuidingConfig {
+                guide_cost: Some(101.0),
+                ..ok.clone()
+            },
+            "guide_cost",
+        ),
+        (
+            GuidingConfig {
+                guide_cost: Some(NAN),
+                ..ok.clone()
+            },
+            "guide_cost",
+        ),
     ];
+    // The ends of the guide cost's range, and no cost at all, are accepted.
+    for guide_cost in [None, Some(0.0), Some(100.0)] {
+        let config = GuidingConfig {
+            guide_cost,
+            ..ok.clone()
+        };
+        assert!(GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config).is_ok());
+    }
     let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
     for (config, field) in cases {
         let err = GuidingField::new(bounds, config).unwrap_err();

@@ -7,7 +7,7 @@ use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
     MergeError, Refinement, Sample,
 };
-use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_vertex};
+use sdguide_lab::synthetic::{Bsdf, LightField, Rng, Workload, room_bounds, room_vertex};
 
 fn workload() -> Workload {
     Workload {
@@ -87,6 +87,7 @@ fn assert_same(a: &GuidingField, b: &GuidingField) {
         let x = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
         assert_eq!(a.continuation(x), b.continuation(x));
         let (da, db) = (a.distribution(x), b.distribution(x));
+        assert_eq!(da.guide_probability(), db.guide_probability());
         let u = rng.next_vec2();
         let (dir, pdf) = da.sample(u);
         assert_eq!((dir, pdf), db.sample(u));
@@ -247,7 +248,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 5), &parts(&bytes)),
+        assemble((2, 6), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
@@ -294,7 +295,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 5)));
+            assert_eq!((found, supported), ((3, 0), (2, 6)));
         }
         other => panic!("{other:?}"),
     }
@@ -415,11 +416,40 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "meta",
         "gain_threshold",
     );
-    // META 2.4: a guide probability bound out of range.
+    // META 2.4: a guide probability bound out of range; 2.6: a guide cost out of range.
     corrupt(
         forge(&bytes, 1, 192, 0.99f32.to_le_bytes()),
         "meta",
         "max_guide_probability",
+    );
+    for cost in [f32::NAN, 101.0, f32::INFINITY] {
+        corrupt(
+            forge(&bytes, 1, 196, cost.to_le_bytes()),
+            "meta",
+            "guide_cost",
+        );
+    }
+    // GUIDE_COST: a count that differs from the trees', flags this version does not define, a
+    // negative second moment.
+    corrupt(
+        forge(&bytes, 8, 0, 999u32.to_le_bytes()),
+        "guide cost",
+        "declared",
+    );
+    corrupt(
+        forge(&bytes, 8, 4, 2u32.to_le_bytes()),
+        "guide cost",
+        "flags",
+    );
+    corrupt(
+        forge(
+            &bytes,
+            8,
+            4 + 8 + 4,
+            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
+        ),
+        "guide cost",
+        "sums",
     );
     // QUADRANTS: a tree count that differs from the trees', a leaf count that differs from
     // the first tree's, a negative sum.
@@ -506,7 +536,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 5)));
+            assert_eq!((found, supported), ((1, 0), (2, 6)));
         }
         other => panic!("{other:?}"),
     }
@@ -538,14 +568,142 @@ fn a_file_without_the_guide_probability_bound_keeps_the_widest() {
     old[0].2.truncate(192);
     let loaded = GuidingField::from_bytes(&assemble((2, 3), &old)).unwrap();
     assert_eq!(loaded.config().max_guide_probability, MAX_GUIDE_PROBABILITY);
+    assert_eq!(loaded.config().guide_cost, None);
     assert_eq!(
         GuidingConfig {
             max_guide_probability: field.config().max_guide_probability,
+            guide_cost: field.config().guide_cost,
             ..loaded.config().clone()
         },
         *field.config()
     );
     assert_eq!(loaded.stats(), field.stats());
+}
+
+/// The workload with a BSDF beside the guide: samples carry mixture terms.
+fn mixture_workload() -> Workload {
+    Workload {
+        bsdf: Some(Bsdf {
+            axis: Vec3::Z,
+            kappa: 2.0,
+        }),
+        ..workload()
+    }
+}
+
+/// A new field whose guide cost turns some guides off on [`mixture_workload`].
+fn untrained_mixture_field() -> GuidingField {
+    let config = GuidingConfig {
+        spatial_threshold: 400.0,
+        subdivision_threshold: 0.05,
+        guide_cost: Some(2.0),
+        ..GuidingConfig::default()
+    };
+    GuidingField::new(room_bounds(), config).unwrap()
+}
+
+/// A field trained on [`mixture_workload`], some guides off, the current iteration's sums
+/// recorded.
+fn mixture_field() -> GuidingField {
+    let work = mixture_workload();
+    let mut field = untrained_mixture_field();
+    work.train(&mut field, 3, 8_000);
+    work.record_iteration(&field, 7, 6_000);
+    field
+}
+
+#[test]
+fn guides_turned_off_load_as_saved_and_older_files_never_turn_one_off() {
+    let field = mixture_field();
+    let stats = field.stats();
+    assert!(
+        stats.guides_off > 0 && stats.guides_off < stats.spatial_leaves,
+        "{} of {} guides off",
+        stats.guides_off,
+        stats.spatial_leaves
+    );
+    let bytes = field.to_bytes();
+    let loaded = GuidingField::from_bytes(&bytes).unwrap();
+    assert_same(&field, &loaded);
+    // The sums recorded since the last refine decide the same at the next one.
+    let (mut a, mut b) = (field, loaded);
+    a.refine();
+    b.refine();
+    assert_same(&a, &b);
+    // A 2.5 file: no guide-cost section, META without the cost. Every guide is on (at the
+    // probability it learned), and stays on.
+    let mut old = parts(&bytes);
+    old[0].2.truncate(196);
+    old.retain(|p| p.0 != 8);
+    let mut older = GuidingField::from_bytes(&assemble((2, 5), &old)).unwrap();
+    assert_eq!(older.config().guide_cost, None);
+    assert_eq!(older.stats().guides_off, 0);
+    assert!(
+        older
+            .cells()
+            .all(|c| c.distribution().guide_probability() >= 0.05)
+    );
+    older.refine();
+    assert_eq!(older.stats().guides_off, 0);
+}
+
+#[test]
+fn cells_that_record_continuations_keep_their_guides_on() {
+    // The same samples with and without a continuation recorded at each sample's position
+    // (what a renderer playing efficiency-aware roulette or splitting does): without, some
+    // guides turn off; with, none does.
+    let train = |continuations: bool| {
+        let work = mixture_workload();
+        let mut field = untrained_mixture_field();
+        for k in 0..3u64 {
+            let mut rng = Rng::new(40 + k);
+            for _ in 0..(8_000 << k) {
+                let s = work.draw(&field, &mut rng);
+                field.record(&s);
+                if continuations {
+                    field.record_continuation(&Continuation {
+                        position: s.position,
+                        value: s.value,
+                        cost: 2.0,
+                    });
+                }
+            }
+            field.refine();
+        }
+        field.stats().guides_off
+    };
+    assert!(train(false) > 0);
+    assert_eq!(train(true), 0);
+}
+
+#[test]
+fn merged_workers_turn_the_same_guides_off_as_one_process() {
+    let mut base = mixture_field();
+    base.refine();
+    let broadcast = base.to_bytes();
+    let worker = || GuidingField::from_bytes(&broadcast).unwrap();
+    let (mut a, b, mut union) = (worker(), worker(), worker());
+    let work = mixture_workload();
+    let mut rng = Rng::new(21);
+    let drawn: Vec<Sample> = (0..30_000).map(|_| work.draw(&a, &mut rng)).collect();
+    let (s1, s2) = drawn.split_at(14_000);
+    a.record_all(s1);
+    b.record_all(s2);
+    union.record_all(&drawn);
+    a.merge(&b).unwrap();
+    a.refine();
+    union.refine();
+    // The same sums in two groupings decide the same (no leaf sits on its threshold to within
+    // rounding), and so do the learned probabilities, to f32 rounding.
+    assert_eq!(a.stats().guides_off, union.stats().guides_off);
+    assert!(a.stats().guides_off > 0);
+    for (ca, cu) in a.cells().zip(union.cells()) {
+        let (pa, pu) = (
+            ca.distribution().guide_probability(),
+            cu.distribution().guide_probability(),
+        );
+        assert!((pa - pu).abs() <= f32::EPSILON, "{pa} vs {pu}");
+    }
 }
 
 #[test]

@@ -65,6 +65,7 @@ fn the_guide_probability_converges_to_the_brute_force_minimizer() {
     let config = GuidingConfig {
         spatial_threshold: 1e9,
         max_guide_probability: MAX_GUIDE_PROBABILITY,
+        guide_cost: None,
         ..GuidingConfig::default()
     };
     let mut field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config).unwrap();

@@ -183,6 +183,12 @@ typedef struct {
    The largest guide probability a leaf learns, in [0.5, 0.95].
    */
   float max_guide_probability;
+  /*
+   What sampling the guide adds to a path vertex's cost, relative, in [0, 100]: a leaf
+   whose guide does not lower the variance below `1/(1 + guide_cost)` of BSDF sampling's
+   turns it off (guide probability 0). Negative: the guide never turns off.
+   */
+  float guide_cost;
 } sdg_config;
 
 /*
@@ -519,7 +525,8 @@ sdg_status sdg_distribution_pdf(const sdg_distribution *dist, sdg_vec3 direction
  The learned probability of sampling the guide rather than the BSDF at the distribution's
  position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
  configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
- mixture terms.
+ mixture terms; 0 where the field turned the guide off (`guide_cost`): sample the BSDF
+ alone there, and skip the guide's pdf unless the pass records.
 
  # Safety
  `dist` must be null or a live distribution; `probability` null or valid for writes.

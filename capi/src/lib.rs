@@ -151,6 +151,10 @@ pub struct sdg_config {
     pub gain_threshold: f32,
     /// The largest guide probability a leaf learns, in [0.5, 0.95].
     pub max_guide_probability: f32,
+    /// What sampling the guide adds to a path vertex's cost, relative, in [0, 100]: a leaf
+    /// whose guide does not lower the variance below `1/(1 + guide_cost)` of BSDF sampling's
+    /// turns it off (guide probability 0). Negative: the guide never turns off.
+    pub guide_cost: f32,
 }
 
 /// One recorded path vertex (see the Rust `Sample`): at `position`, light of `value` arrived
@@ -421,6 +425,7 @@ pub unsafe extern "C" fn sdg_config_default(out: *mut sdg_config) -> sdg_status 
             },
             gain_threshold: c.gain_threshold,
             max_guide_probability: c.max_guide_probability,
+            guide_cost: c.guide_cost.unwrap_or(-1.0),
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", config) }?;
@@ -494,6 +499,8 @@ pub unsafe extern "C" fn sdg_field_create(
             },
             gain_threshold: c.gain_threshold,
             max_guide_probability: c.max_guide_probability,
+            // NaN is not negative: it reaches validation, which refuses it.
+            guide_cost: Some(c.guide_cost).filter(|g| *g >= 0.0 || g.is_nan()),
         };
         if out.is_null() {
             return fail(sdg_status::NullPointer, "`out` is null");
@@ -857,7 +864,8 @@ pub unsafe extern "C" fn sdg_distribution_pdf(
 /// The learned probability of sampling the guide rather than the BSDF at the distribution's
 /// position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
 /// configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
-/// mixture terms.
+/// mixture terms; 0 where the field turned the guide off (`guide_cost`): sample the BSDF
+/// alone there, and skip the guide's pdf unless the pass records.
 ///
 /// # Safety
 /// `dist` must be null or a live distribution; `probability` null or valid for writes.

@@ -12,7 +12,9 @@
 //!
 //! 1. at a vertex, look up the distribution once, as its product with the clamped cosine about
 //!    the shading normal (`field.distribution(x).at_surface(n)`: every guided material here
-//!    reflects only, so nothing below the surface is worth a sample);
+//!    reflects only, so nothing below the surface is worth a sample); where its guide
+//!    probability is 0 (the field turned the guide off there) a pass that does not record
+//!    samples the BSDF alone;
 //! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
 //!    and for every next-event direction, since MIS must weigh the strategy actually used;
 //! 3. a continuation's value is the radiance arriving along its direction, every later
@@ -235,6 +237,15 @@ impl<'a> VertexSampler<'a> {
     /// The same strategy with the guide drawn with probability `a` instead of the learned one.
     pub fn with_guide_probability(self, a: f32) -> Self {
         VertexSampler { a, ..self }
+    }
+
+    /// The same strategy without its guide where the guide is never drawn (`a = 0`: the field
+    /// turned it off in this cell): BSDF sampling alone, with no guide pdf to evaluate. A
+    /// training pass keeps it, since the recorded mixture terms need the guide's pdf for the
+    /// cell to tell whether the guide pays again.
+    pub fn without_idle_guide(self) -> Self {
+        let guide = self.guide.filter(|_| self.a > 0.0);
+        VertexSampler { guide, ..self }
     }
 
     /// The BSDF `f(wo, wi)·|cos θ_i|` for a world direction.
@@ -496,6 +507,9 @@ impl Path<'_, '_> {
                 VertexSampler::with_guide(hit.position, normal, wo, material, guide, lookup);
             if let Some(a) = fixed {
                 sampler = sampler.with_guide_probability(a);
+            }
+            if !self.guiding.is_some_and(|g| g.record) {
+                sampler = sampler.without_idle_guide();
             }
 
             // Next-event estimation, weighed against the mixture that would also find the

@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p sdguide-render -- [--scene door|…|all] [--seeds 1] [--time 40]
 //!     [--spp N] [--rule both] [--out out/render] [--threads N] [--seed 1] [--cache FILE] [--width 320 --height 240]
-//!     [--training-share 0.3] [--guide-probability F] [--max-guide-probability F] [--refinement gain|flux]
+//!     [--training-share 0.3] [--guide-probability F] [--max-guide-probability F] [--guide-cost F|none] [--refinement gain|flux]
 //!     [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both]
 //!     [--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)]
 //! cargo run --release -p sdguide-render -- --scene door --probe out/render/door-guided-l2.sdgc
@@ -31,7 +31,7 @@ const ALL_SCENES: [&str; 5] = ["door", "glossy-box", "uplight", "covered", "caus
 const USAGE: &str = "usage: render [--scene door|glossy-box|uplight|covered|caustic|furnace|all] \
 [--seeds N] [--time SECONDS (0: none)] [--spp N] [--rule l1|l2|l2m|both|all (or a list: l1,l2m)] \
 [--out DIR] [--threads N] [--seed N] [--cache FILE] \
-[--width N] [--height N] [--training-share F] [--guide-probability F] [--max-guide-probability F] \
+[--width N] [--height N] [--training-share F] [--guide-probability F] [--max-guide-probability F] [--guide-cost F|none] \
 [--refinement gain|flux] \
 [--filter box|deferred|nearest] [--spatial-threshold N] [--peer none|plain|cos|both] \
 [--nee on|off] [--rrs classic|ear|ears|none (or a list: classic,none)] [--reference] \
@@ -54,6 +54,9 @@ struct Args {
     guide_probability: Option<f32>,
     /// The largest guide probability the field learns.
     max_guide_probability: f32,
+    /// What a guided vertex costs, relative, for the field's cells to turn their guides off by
+    /// (`None`: never).
+    guide_cost: Option<f32>,
     refinement: Refinement,
     directional_filter: DirectionalFilter,
     spatial_threshold: f32,
@@ -93,6 +96,7 @@ fn parse() -> Result<Args, String> {
         make_reference: false,
         guide_probability: None,
         max_guide_probability: GuidingConfig::default().max_guide_probability,
+        guide_cost: GuidingConfig::default().guide_cost,
         refinement: Refinement::default(),
         directional_filter: DirectionalFilter::default(),
         spatial_threshold: GuidingConfig::default().spatial_threshold,
@@ -218,6 +222,12 @@ fn parse() -> Result<Args, String> {
                 a.guide_probability = Some(p);
             }
             "--max-guide-probability" => a.max_guide_probability = number(&flag, &value)?,
+            "--guide-cost" => {
+                a.guide_cost = match value.as_str() {
+                    "none" => None,
+                    _ => Some(number(&flag, &value)?),
+                }
+            }
             "--training-share" => {
                 let share: f32 = number(&flag, &value)?;
                 if !(0.0..1.0).contains(&share) {
@@ -272,6 +282,7 @@ fn run_method(
                 directional_filter: args.directional_filter,
                 spatial_threshold: args.spatial_threshold,
                 max_guide_probability: args.max_guide_probability,
+                guide_cost: args.guide_cost,
                 ..GuidingConfig::default()
             },
             cache,
@@ -608,17 +619,20 @@ fn probe_report(scene: &Scene, field: &GuidingField, args: &Args) -> String {
 fn cost_report(scene: &Scene, field: &GuidingField, path: &std::path::Path, args: &Args) -> String {
     const SPP: u32 = 2;
     let cost = paired_cost(scene, field, (args.width, args.height), SPP, args.rounds);
+    let stats = field.stats();
     let mut r = format!(
         "# What a guided sample costs in `{}`, guided by {}\n\n\
          {} rounds of two passes of {SPP} spp at {}×{} on {} threads, one unguided and one \
-         guided by the cache (its learned guide probabilities, classic roulette), the unguided \
-         one first in every other round.\n\n",
+         guided by the cache (its learned guide probabilities, classic roulette; the guide off \
+         in {} of its {} spatial cells), the unguided one first in every other round.\n\n",
         scene.name,
         path.display(),
         args.rounds,
         args.width,
         args.height,
         rayon::current_num_threads(),
+        stats.guides_off,
+        stats.spatial_leaves,
     );
     if let Some([lo, q1, median, q3, hi]) = cost.spread() {
         let mut unguided: Vec<f64> = cost.unguided.iter().map(|t| t.as_secs_f64()).collect();
@@ -674,7 +688,12 @@ fn header(args: &Args, command: &str) -> String {
             .map_or(String::new(), |n| format!(", at most {n} spp")),
         args.budget.training_share,
         args.guide_probability.map_or(
-            format!("learned up to {}", args.max_guide_probability),
+            format!(
+                "learned up to {}, off where it does not pay {}",
+                args.max_guide_probability,
+                args.guide_cost
+                    .map_or("(never)".into(), |c| format!("a cost of {c}"))
+            ),
             |p| format!("fixed at {p}")
         ),
         if args.nee { "on" } else { "off" },

@@ -60,17 +60,34 @@ fn trained_in(scene: &Scene, rule: LeafRule) -> GuidingField {
 /// A field trained on `scene` with `rule` as [`trained_in`]'s, its paths playing `roulette`,
 /// or with `mode` roulette and splitting by the field's own estimates; and the training passes'
 /// images.
+///
+/// The guide never turns off (`guide_cost: None`): in the furnace it never pays (below), and
+/// these tests are of the guided estimator.
 fn trained_with(
     scene: &Scene,
     rule: LeafRule,
     roulette: Roulette,
     mode: Option<SplittingMode>,
 ) -> (GuidingField, Vec<PassImage>) {
-    let config = GuidingConfig {
-        rule,
-        spatial_threshold: 1000.0,
-        ..GuidingConfig::default()
-    };
+    trained_with_config(
+        scene,
+        GuidingConfig {
+            rule,
+            spatial_threshold: 1000.0,
+            guide_cost: None,
+            ..GuidingConfig::default()
+        },
+        roulette,
+        mode,
+    )
+}
+
+fn trained_with_config(
+    scene: &Scene,
+    config: GuidingConfig,
+    roulette: Roulette,
+    mode: Option<SplittingMode>,
+) -> (GuidingField, Vec<PassImage>) {
     let mut field = GuidingField::new(field_bounds(scene), config).unwrap();
     let mut passes = Vec::new();
     for iteration in 0..5 {
@@ -140,6 +157,28 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
             &format!("{rule:?}"),
         );
     }
+}
+
+/// The furnace's radiance is the same from every direction, so BSDF sampling alone already
+/// draws in proportion to the integrand (the cosine): a guide cannot lower the variance there,
+/// and with the default cost it turns off. The render, BSDF sampling where the guide is off,
+/// converges all the same.
+#[test]
+fn in_the_furnace_the_guide_does_not_pay_and_turns_off() {
+    let scene = furnace(ALBEDO, EMISSION);
+    let config = GuidingConfig {
+        spatial_threshold: 1000.0,
+        ..GuidingConfig::default()
+    };
+    let (field, _) = trained_with_config(&scene, config, Roulette::Classic, None);
+    let stats = field.stats();
+    assert!(
+        2 * stats.guides_off > stats.spatial_leaves,
+        "{} of {} guides off",
+        stats.guides_off,
+        stats.spatial_leaves
+    );
+    assert_converges(&render_furnace(Some(Guide::Sdguide(&field))), "guides off");
 }
 
 /// Without roulette every path goes on to the longest depth: trained and rendered that way, the

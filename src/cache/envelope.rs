@@ -42,6 +42,7 @@ pub(super) struct Sections<'a> {
     pub(super) continuations: Option<&'a [u8]>,
     pub(super) surfaces: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
+    pub(super) guide_cost: Option<&'a [u8]>,
 }
 
 /// Checks magic, version, length and checksum, and finds the sections.
@@ -108,7 +109,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
     };
     let (mut meta, mut spatial, mut directional) = (None, None, None);
     let (mut selection, mut quadrants, mut continuations) = (None, None, None);
-    let mut surfaces = None;
+    let (mut surfaces, mut guide_cost) = (None, None);
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -131,6 +132,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_QUADRANTS => &mut quadrants,
             SECTION_CONTINUATIONS => &mut continuations,
             SECTION_SURFACES => &mut surfaces,
+            SECTION_GUIDE_COST => &mut guide_cost,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -155,5 +157,6 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         quadrants,
         continuations,
         surfaces,
+        guide_cost,
     })
 }

@@ -10,7 +10,7 @@ pub(super) fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
     out.u32(trees.len() as u32);
     for t in trees {
         let s = t.selection.sums();
-        out.f32(t.selection.probability);
+        out.f32(t.selection.learned);
         out.u32(0);
         out.f64(s.gradient);
         out.f64(s.curvature);
@@ -42,19 +42,69 @@ pub(super) fn decode_selection(
             gradient: r.f64()?,
             curvature: r.f64()?,
             count: r.u64()?,
+            ..SelectionSums::default()
         };
         let in_range = (MIN_GUIDE_PROBABILITY..=MAX_GUIDE_PROBABILITY).contains(&probability);
-        let sums_ok = sums.gradient.is_finite()
-            && sums.curvature.is_finite()
-            && sums.curvature >= 0.0
-            && (sums.count > 0 || (sums.gradient == 0.0 && sums.curvature == 0.0));
-        if !(in_range && sums_ok) {
+        if !(in_range && sums.valid()) {
             return Err(corrupt(
                 "selection",
                 format!("tree {i}: probability {probability}, sums {sums:?}"),
             ));
         }
-        t.selection = GuideSelection::from_parts(probability, sums);
+        t.selection = GuideSelection::from_parts(probability, false, sums);
+    }
+    Ok(())
+}
+
+pub(super) fn encode_guide_cost(trees: &[DirectionalTree]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + GUIDE_COST_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let s = t.selection.sums();
+        out.u32(u32::from(t.selection.off()));
+        out.u32(0);
+        out.f64(s.guided);
+        out.f64(s.bsdf);
+        out.f64(s.first);
+        out.u64(s.uncovered);
+    }
+    out.0
+}
+
+/// Reads the optional guide-cost section into `trees` (already decoded, their selections
+/// too).
+pub(super) fn decode_guide_cost(
+    bytes: &[u8],
+    trees: &mut [DirectionalTree],
+) -> Result<(), CacheError> {
+    let mut r = In {
+        bytes,
+        section: "guide cost",
+    };
+    let n = r.count(GUIDE_COST_LEN, "guide costs")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            "guide cost",
+            format!("{n} entries for {} trees", trees.len()),
+        ));
+    }
+    for (i, t) in trees.iter_mut().enumerate() {
+        let flags = r.u32()?;
+        r.u32()?;
+        let sums = SelectionSums {
+            guided: r.f64()?,
+            bsdf: r.f64()?,
+            first: r.f64()?,
+            uncovered: r.u64()?,
+            ..t.selection.sums()
+        };
+        if flags > 1 || !sums.valid() {
+            return Err(corrupt(
+                "guide cost",
+                format!("tree {i}: flags {flags}, sums {sums:?}"),
+            ));
+        }
+        t.selection = GuideSelection::from_parts(t.selection.learned, flags == 1, sums);
     }
     Ok(())
 }

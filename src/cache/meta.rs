@@ -55,6 +55,9 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.f32(c.gain_threshold);
     debug_assert_eq!(out.0.len(), META_LEN_2_3);
     out.f32(c.max_guide_probability);
+    debug_assert_eq!(out.0.len(), META_LEN_2_5);
+    // The guide never off: a negative cost.
+    out.f32(c.guide_cost.unwrap_or(-1.0));
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -147,6 +150,12 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         MAX_GUIDE_PROBABILITY
     } else {
         r.f32()?
+    };
+    // 2.6: the guide's cost. An older file never turned a guide off, and keeps not doing so.
+    field.config.guide_cost = if r.bytes.is_empty() {
+        None
+    } else {
+        Some(r.f32()?).filter(|&c| c >= 0.0 || c.is_nan())
     };
     field
         .config

@@ -42,8 +42,8 @@ mod validate;
 use bytes::{In, Out};
 use envelope::{read_envelope, write_envelope};
 use leaf_sums::{
-    decode_continuations, decode_quadrants, decode_selection, decode_surfaces,
-    encode_continuations, encode_quadrants, encode_selection, encode_surfaces,
+    decode_continuations, decode_guide_cost, decode_quadrants, decode_selection, decode_surfaces,
+    encode_continuations, encode_guide_cost, encode_quadrants, encode_selection, encode_surfaces,
 };
 use meta::{decode_meta, encode_meta};
 use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
@@ -63,8 +63,10 @@ pub const FORMAT_MAJOR: u16 = 2;
 /// appends [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) to `META`,
 /// which an older reader ignores (it learns up to its own bound); 2.5 adds the optional
 /// `SURFACES` section (each spatial cell's tally of recorded normals), which an older reader
-/// skips.
-pub const FORMAT_MINOR: u16 = 5;
+/// skips; 2.6 appends [`guide_cost`](crate::GuidingConfig::guide_cost) to `META` and adds the
+/// optional `GUIDE_COST` section (whether each spatial cell's guide is off, and the sums that
+/// decide it), which an older reader ignores and skips.
+pub const FORMAT_MINOR: u16 = 6;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -87,6 +89,10 @@ const CONTINUATIONS_LEN: usize = 64;
 /// (optional: a reader without it starts with no tally, and queries take the per-query product).
 const SECTION_SURFACES: u32 = 7;
 const SURFACES_LEN: usize = 8 + 20 * SLOTS;
+/// 2.6: whether each spatial leaf's guide is off, and the variance sums that decide it
+/// (optional: a reader without it starts every guide on, with no sums).
+const SECTION_GUIDE_COST: u32 = 8;
+const GUIDE_COST_LEN: usize = 40;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -95,9 +101,12 @@ const META_LEN_1_0: usize = 176;
 const META_LEN_1_1: usize = 184;
 /// Length of the `META` section in formats 1.2 to 2.3.
 const META_LEN_2_3: usize = 192;
+/// Length of the `META` section in formats 2.4 and 2.5.
+const META_LEN_2_5: usize = 196;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
-/// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound).
-const META_LEN: usize = 196;
+/// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound,
+/// 2.6 the guide's cost).
+const META_LEN: usize = 200;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -231,6 +240,7 @@ impl GuidingField {
             (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
             (SECTION_CONTINUATIONS, 0, encode_continuations(&self.trees)),
             (SECTION_SURFACES, 0, encode_surfaces(&self.trees)),
+            (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.trees)),
         ];
         write_envelope(&sections)
     }
@@ -271,6 +281,9 @@ impl GuidingField {
         }
         if let Some(bytes) = sections.surfaces {
             decode_surfaces(bytes, &mut field.trees)?;
+        }
+        if let Some(bytes) = sections.guide_cost {
+            decode_guide_cost(bytes, &mut field.trees)?;
         }
         field.prepare_recording();
         Ok(field)

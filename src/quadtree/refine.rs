@@ -27,6 +27,8 @@ pub(crate) struct RefineParams {
     pub prior_samples: f64,
     /// The guide probability's upper bound.
     pub max_guide_probability: f32,
+    /// What sampling the guide costs, relative; `None`: the guide never turns off.
+    pub guide_cost: Option<f32>,
     /// Whether recording defers the directional box filter to refine (give leaves pending sums).
     pub deferred: bool,
 }
@@ -165,7 +167,13 @@ impl DirectionalTree {
     /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
     /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
     pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
-        self.selection.step(params.max_guide_probability);
+        // Where the renderer recorded continuations (efficiency-aware roulette or splitting),
+        // the guide stays on: the factors follow continuation estimates the guide shapes, so
+        // what the guide is worth is not in its vertices' variance alone (see
+        // `guide_probability`).
+        let splitting = self.continuations.recorded().count > 0;
+        let cost = params.guide_cost.filter(|_| !splitting);
+        self.selection.step(params.max_guide_probability, cost);
         self.continuations.step();
         self.recording.flush_pending_mut();
         let samples = self.recording.count();
