@@ -22,11 +22,14 @@ const BUDGET: Budget = Budget {
     first: 100_000,
 };
 
+/// A field trained on `field` with `rule`. Every guide stays on (`guide_cost: None`): the
+/// harness measures variance, and a guide turned off for its cost trades variance for time.
 fn trained(field: &TestField, rule: LeafRule) -> (GuidingField, Report) {
     trained_with(
         field,
         GuidingConfig {
             rule,
+            guide_cost: None,
             ..GuidingConfig::default()
         },
     )
