@@ -370,22 +370,25 @@ mod tests {
         }
     }
 
+    /// `(f, p_g, p_b)`: light (f = 1) on `[0, ½)` only, the guide all there (density 2), the
+    /// BSDF uniform.
+    fn light_on_half(x: f32) -> (f32, f32, f32) {
+        if x < 0.5 {
+            (1.0, 2.0, 1.0)
+        } else {
+            (0.0, 0.0, 1.0)
+        }
+    }
+
     #[test]
     fn the_guide_turns_off_where_the_variance_it_saves_does_not_pay_its_cost() {
         // f = 1 on [0, ½), 0 past it; the BSDF uniform, the guide all on [0, ½). BSDF sampling:
         // M(0) = ½, ∫f = ½, V(0) = ¼. The mixture at a = ½ has q = 1 + a on [0, ½):
         // M = ½/(1 + a) = ⅓, V = 1/12, a third of V(0). So the guide pays for a cost below 2
         // (V·(1 + cost) < V(0)) and not above. The midpoint rule is exact here.
-        let half = |x: f32| {
-            if x < 0.5 {
-                (1.0, 2.0, 1.0)
-            } else {
-                (0.0, 0.0, 1.0)
-            }
-        };
         for (cost, off) in [(1.9, false), (2.1, true)] {
             let mut sel = GuideSelection::default();
-            record_quadrature(&sel, 1000, half);
+            record_quadrature(&sel, 1000, light_on_half);
             sel.step(MAX_GUIDE_PROBABILITY, Some(cost));
             assert_eq!(sel.off(), off, "cost {cost}");
             // The learned probability moves either way; queries read 0 while the guide is off.
@@ -406,23 +409,16 @@ mod tests {
 
     #[test]
     fn an_idle_guide_turns_back_on_once_it_pays_and_waits_for_enough_samples() {
-        let half = |x: f32| {
-            if x < 0.5 {
-                (1.0, 2.0, 1.0)
-            } else {
-                (0.0, 0.0, 1.0)
-            }
-        };
         let mut sel = GuideSelection::from_parts(0.3, true, SelectionSums::default());
         assert_eq!(sel.probability, 0.0);
         // Too few samples to tell: the guide stays off (the Newton step still runs).
-        record_quadrature(&sel, MIN_VERDICT_SAMPLES as usize - 1, half);
+        record_quadrature(&sel, MIN_VERDICT_SAMPLES as usize - 1, light_on_half);
         sel.step(MAX_GUIDE_PROBABILITY, Some(0.25));
         assert!(sel.off());
         assert!(sel.learned > 0.3);
         // Enough samples drawn from the BSDF alone (what a leaf with its guide off records) show
         // the guide paying: it turns back on, at the probability it learned meanwhile.
-        record_quadrature(&sel, 1000, half);
+        record_quadrature(&sel, 1000, light_on_half);
         sel.step(MAX_GUIDE_PROBABILITY, Some(0.25));
         assert!(!sel.off());
         assert_eq!(sel.probability, sel.learned);

@@ -92,7 +92,8 @@ pub struct FieldStats {
     /// Nodes of those products.
     pub surface_product_nodes: u64,
     /// Spatial leaves whose guide is off: it did not pay for its cost there in the last
-    /// iteration that could tell (see [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost)).
+    /// iteration that could tell (see
+    /// [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost)).
     pub guides_off: u64,
 }
 
