@@ -1,10 +1,12 @@
 //! The field's configuration: every knob, its default, and the checks that reject absurd values.
 
+use crate::filter::{DirectionalFilter, SpatialFilter};
 use crate::guide_probability::{
     DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
     MAX_GUIDE_PROBABILITY,
 };
-use crate::{DirectionalFilter, LeafRule, Refinement, SpatialFilter};
+use crate::refinement::Refinement;
+use crate::rule::LeafRule;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -89,20 +91,20 @@ pub struct GuidingConfig {
     /// Must be finite and ≥ 0.
     pub prior_samples: f32,
     /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`], chosen
-    /// with the quality harness; see [`filter`](crate::filter)).
+    /// with the quality harness).
     pub spatial_filter: SpatialFilter,
     /// How a sample is spread over directional leaves (default [`DirectionalFilter::Box`], chosen
     /// with the quality harness: lower variance on every light field, most on noisy ones).
     pub directional_filter: DirectionalFilter,
     /// The largest guide probability `a` a spatial leaf learns (default 0.75; see
-    /// [`guide_probability`](crate::guide_probability)). The BSDF keeps at least `1 − a` of
+    /// [`DirectionalDistribution::guide_probability`](crate::DirectionalDistribution::guide_probability)).
+    /// The BSDF keeps at least `1 − a` of
     /// the samples, which bounds a vertex's second moment by `1/(1 − a)` times BSDF sampling's
     /// alone, whatever the guide learned wrong. Must be in
-    /// `[0.5, `[`MAX_GUIDE_PROBABILITY`](crate::guide_probability::MAX_GUIDE_PROBABILITY)`]`.
+    /// `[0.5, `[`MAX_GUIDE_PROBABILITY`](crate::MAX_GUIDE_PROBABILITY)`]`.
     pub max_guide_probability: f32,
     /// What sampling the guide adds to the cost of a path vertex, relative to a vertex that
-    /// samples only the BSDF (default `Some(0.25)`, measured in the demo renderer; see
-    /// [`guide_probability`](crate::guide_probability)). A spatial leaf whose guide does not
+    /// samples only the BSDF (default `Some(0.25)`, measured in the demo renderer). A spatial leaf whose guide does not
     /// lower the variance of its vertices' estimates below `1/(1 + guide_cost)` of BSDF
     /// sampling's turns the guide off: its guide probability reads 0 until an iteration's
     /// samples show the guide paying again. A leaf where continuations were recorded

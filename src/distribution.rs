@@ -6,10 +6,8 @@
 //! density is the tree's density on the square divided by 4π (the map of [`crate::sphere`]
 //! preserves area), and `sample` returns exactly the density `pdf` gives its direction.
 
-use crate::DirectionalCell;
-use crate::quadtree::{
-    DirectionalTree, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree, SurfaceTree, Surfaces,
-};
+use crate::quadtree::DirectionalCell;
+use crate::quadtree::{HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree, SurfaceTree, Surfaces};
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::splitting::ContinuationEstimate;
 use glam::{Vec2, Vec3};
@@ -26,14 +24,19 @@ pub struct DirectionalDistribution<'a> {
 }
 
 impl<'a> DirectionalDistribution<'a> {
-    /// The distribution of a spatial leaf's directional tree.
+    /// The distribution of a region's sampling tree, with what else a query reads of it.
     #[inline]
-    pub(crate) fn of(tree: &'a DirectionalTree) -> Self {
+    pub(crate) fn new(
+        tree: &'a SamplingTree,
+        guide_probability: f32,
+        continuation: &'a ContinuationEstimate,
+        surfaces: &'a Surfaces,
+    ) -> Self {
         Self {
-            tree: &tree.sampling,
-            guide_probability: tree.selection.probability,
-            continuation: &tree.continuations.estimate,
-            surfaces: &tree.surfaces,
+            tree,
+            guide_probability,
+            continuation,
+            surfaces,
         }
     }
 
@@ -75,9 +78,10 @@ impl<'a> DirectionalDistribution<'a> {
 
     /// The learned probability `a` of sampling this distribution rather than the BSDF, for the
     /// one-sample mixture `a·pdf + (1 − a)·p_bsdf`, between 0.05 and the configuration's
-    /// [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) (see
-    /// [`guide_probability`](crate::guide_probability)); ½ until the cell has learned it from
-    /// samples recorded with [`Sample::with_mixture`](crate::Sample::with_mixture).
+    /// [`max_guide_probability`](crate::GuidingConfig::max_guide_probability); ½ until the cell
+    /// has learned it from samples recorded with
+    /// [`Sample::with_mixture`](crate::Sample::with_mixture). Each iteration takes one Newton
+    /// step toward the `a` that minimizes the second moment of `f/q_a`, which is convex in `a`.
     ///
     /// 0 where the field turned the guide off, since it did not pay for its
     /// [`guide_cost`](crate::GuidingConfig::guide_cost) there: sample the BSDF alone, whose pdf

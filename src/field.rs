@@ -5,20 +5,24 @@
 //! iterations the renderer calls [`GuidingField::refine`], which takes `&mut self`, so the type
 //! system guarantees no thread is recording or sampling while the trees change.
 
+use crate::bounds::Aabb;
+use crate::config::{ConfigError, GuidingConfig};
+use crate::distribution::DirectionalDistribution;
+use crate::filter::SpatialFilter;
 use crate::filter::hash_jitter;
+use crate::moments::Moments;
 use crate::moments::weights;
-use crate::quadtree::{
-    DirectionalTree, GRID_BYTES, RefineOutcome, RefineParams, bytes_per_node, leaf_bytes, tallies,
-};
+use crate::quadtree::DirectionalCell;
+use crate::quadtree::{bytes_per_node, tallies};
+use crate::region::{RefineOutcome, Region, StepParams};
+use crate::rule::LeafRule;
 use crate::rule::mixture_value;
+use crate::sample::{RejectReason, Sample};
 use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
+use crate::splitting::{Continuation, ContinuationEstimate};
 use crate::stats::RejectCounters;
-use crate::{
-    Aabb, ConfigError, Continuation, ContinuationEstimate, DirectionalCell,
-    DirectionalDistribution, FieldStats, GuidingConfig, LeafRule, Moments, RejectReason,
-    Rejections, Sample, SpatialFilter,
-};
+use crate::stats::{FieldStats, Rejections};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -52,7 +56,8 @@ pub struct GuidingField {
     pub(crate) bounds: Aabb,
     pub(crate) config: GuidingConfig,
     pub(crate) spatial: SpatialTree,
-    pub(crate) trees: Vec<DirectionalTree>,
+    /// One per spatial leaf, in the order the spatial tree's leaves index them.
+    pub(crate) regions: Vec<Region>,
     pub(crate) iteration: u32,
     /// Rejections in the current iteration (folded into `rejected_before` by `refine`).
     pub(crate) rejected: RejectCounters,
@@ -94,7 +99,7 @@ impl GuidingField {
             bounds,
             config,
             spatial: SpatialTree::new(cube),
-            trees: vec![DirectionalTree::default()],
+            regions: vec![Region::default()],
             iteration: 0,
             rejected: RejectCounters::default(),
             rejected_before: Rejections::default(),
@@ -111,8 +116,8 @@ impl GuidingField {
     /// them to the trees it builds).
     pub(crate) fn prepare_recording(&mut self) {
         if self.config.directional_filter.defers() {
-            for t in &mut self.trees {
-                t.recording.defer();
+            for r in &mut self.regions {
+                r.defer();
             }
         }
     }
@@ -167,17 +172,16 @@ impl GuidingField {
             .filter(|_| tallies(p, sample.direction))
             .and_then(crate::sphere::normalize)
         {
-            self.trees[home].surfaces.record(n);
+            self.regions[home].record_normal(n);
         }
         let mut value = sample.value;
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
-            let tree = &self.trees[home];
-            tree.selection
-                .record(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
+            let region = &self.regions[home];
+            region.record_selection(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
             if self.config.rule == LeafRule::L2Mixture {
-                // The tree's own pdf is the one the direction was guided with.
-                let p_g = f64::from(tree.sampling.pdf(square)) * f64::from(INV_SPHERE_AREA);
+                // The region's own pdf is the one the direction was guided with.
+                let p_g = f64::from(region.square_pdf(square)) * f64::from(INV_SPHERE_AREA);
                 value = mixture_value(m.integrand, m.guide_pdf, p_g, sample.pdf);
             }
         }
@@ -207,7 +211,7 @@ impl GuidingField {
                     self.insert_directional(home, square, w, true);
                     return Ok(());
                 }
-                self.trees[home].recording.count_sample(square, w.1);
+                self.regions[home].count_sample(square, w.1);
                 self.spatial.overlapping(lo, hi, |leaf, v| {
                     let share = v / volume;
                     let part = (w.0 * share, w.1 * share);
@@ -218,17 +222,15 @@ impl GuidingField {
         Ok(())
     }
 
-    /// Records weights `w` at `square` into spatial leaf `leaf`'s tree through the directional
-    /// filter; `counted`: as the sample's own record (see `RecordingTree::record`).
+    /// Records weights `w` at `square` into spatial leaf `leaf`'s region through the
+    /// directional filter; `counted`: as the sample's own record (see `Region::record`).
     #[inline]
     fn insert_directional(&self, leaf: usize, square: Vec2, w: (f64, f64), counted: bool) {
-        self.trees[leaf]
-            .recording
-            .record(self.config.directional_filter, square, w, counted);
+        self.regions[leaf].record(self.config.directional_filter, square, w, counted);
     }
 
     /// Records one traced continuation of a path vertex (see [`Continuation`]), for the
-    /// roulette and splitting factors of [`splitting`](crate::splitting). Safe to call from
+    /// roulette and splitting factors of [`Splitting`](crate::Splitting). Safe to call from
     /// any number of threads at once; never blocks. A continuation that fails
     /// [`Continuation::check`] or lies outside the bounds (as for [`record`](Self::record)) is
     /// rejected and counted in [`FieldStats::rejected`].
@@ -254,9 +256,7 @@ impl GuidingField {
                 }
             })
             .map(|()| {
-                self.trees[self.spatial.leaf_at(c.position)]
-                    .continuations
-                    .record(c.value, c.cost);
+                self.regions[self.spatial.leaf_at(c.position)].record_continuation(c.value, c.cost);
             })
             .inspect_err(|&reason| self.rejected.count(reason))
     }
@@ -265,17 +265,14 @@ impl GuidingField {
     /// the bounds), for [`Splitting::factor`](crate::Splitting::factor).
     #[inline]
     pub fn continuation(&self, position: Vec3) -> ContinuationEstimate {
-        self.trees[self.spatial.leaf_at(position)]
-            .continuations
-            .estimate
+        self.regions[self.spatial.leaf_at(position)].continuation()
     }
 
     /// The directional distribution to sample at `position`. Positions outside the bounds get
     /// the nearest cell's distribution, so a renderer always receives a valid one.
     #[inline]
     pub fn distribution(&self, position: Vec3) -> DirectionalDistribution<'_> {
-        let tree = &self.trees[self.spatial.leaf_at(position)];
-        DirectionalDistribution::of(tree)
+        self.regions[self.spatial.leaf_at(position)].distribution()
     }
 
     /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
@@ -289,27 +286,15 @@ impl GuidingField {
         // The memory budget binds the directional trees too: what the spatial tree and the
         // trees' fixed parts leave of it, shared evenly, caps each tree's interior nodes.
         let deferred = c.directional_filter.defers();
-        let trees = self.trees.len() as u64;
-        let fixed = self.spatial.bytes() as u64 + trees * tree_fixed_bytes(deferred);
+        let trees = self.regions.len() as u64;
+        let fixed = self.spatial.bytes() as u64 + trees * Region::fixed_bytes(deferred);
         let per_tree =
             c.max_memory_bytes.saturating_sub(fixed) / (trees * bytes_per_node(deferred));
-        let params = RefineParams {
-            rule: c.rule,
-            uniform_fraction: f64::from(c.uniform_fraction),
-            refinement: c.refinement,
-            subdivision_threshold: f64::from(c.subdivision_threshold),
-            gain_threshold: f64::from(c.gain_threshold),
-            max_depth: c.max_directional_depth,
-            max_nodes: c.max_directional_nodes.min(per_tree.max(1) as u32),
-            prior_samples: f64::from(c.prior_samples),
-            max_guide_probability: c.max_guide_probability,
-            guide_cost: c.guide_cost,
-            deferred,
-        };
+        let params = StepParams::new(c, c.max_directional_nodes.min(per_tree.max(1) as u32));
         let outcomes: Vec<RefineOutcome> = self
-            .trees
+            .regions
             .par_iter_mut()
-            .map(|t| t.refine(&params))
+            .map(|r| r.refine(&params))
             .collect();
         let counts: Vec<u64> = outcomes.iter().map(|o| o.samples).collect();
         let recorded = counts.iter().fold(0u64, |a, &b| a.saturating_add(b));
@@ -322,17 +307,17 @@ impl GuidingField {
         let threshold = f64::from(c.spatial_threshold) * 2f64.powf(0.5 * f64::from(self.iteration));
         let budget = c.max_memory_bytes;
         let mut bytes = self.bytes();
-        let trees = &mut self.trees;
+        let regions = &mut self.regions;
         self.spatial_refused +=
             self.spatial
                 .split(&counts, threshold, c.max_spatial_nodes as usize, |leaf| {
-                    let cost = (tree_bytes(&trees[leaf]) + 2 * size_of::<u32>()) as u64;
+                    let cost = (regions[leaf].bytes() + 2 * size_of::<u32>()) as u64;
                     if bytes + cost > budget {
                         return None;
                     }
                     bytes += cost;
-                    trees.push(trees[leaf].clone());
-                    Some(trees.len() - 1)
+                    regions.push(regions[leaf].clone());
+                    Some(regions.len() - 1)
                 });
         self.iteration += 1;
     }
@@ -345,13 +330,13 @@ impl GuidingField {
         if over == 0 {
             return;
         }
-        let mut order: Vec<usize> = (0..self.trees.len()).collect();
-        order.sort_by_key(|&i| std::cmp::Reverse(self.trees[i].surfaces.bytes()));
+        let mut order: Vec<usize> = (0..self.regions.len()).collect();
+        order.sort_by_key(|&i| std::cmp::Reverse(self.regions[i].surface_bytes()));
         for i in order {
             if over == 0 {
                 break;
             }
-            let freed = self.trees[i].surfaces.drop_products() as u64;
+            let freed = self.regions[i].drop_surface_products() as u64;
             over = over.saturating_sub(freed);
         }
     }
@@ -370,18 +355,8 @@ impl GuidingField {
             bytes: self.bytes(),
             ..FieldStats::default()
         };
-        for t in &self.trees {
-            let (leaves, depth) = t.sampling.leaf_count_and_depth();
-            s.directional_nodes += t.sampling.node_count() as u64;
-            s.directional_leaves += leaves as u64;
-            s.directional_depth = s.directional_depth.max(depth);
-            s.samples_recorded = s.samples_recorded.saturating_add(t.recording.count());
-            s.surface_products += t.surfaces.products.len() as u64;
-            s.surface_product_nodes += t.surfaces.node_count() as u64;
-            s.guides_off += u64::from(t.selection.off());
-            s.continuations_recorded = s
-                .continuations_recorded
-                .saturating_add(t.continuations.recorded().count);
+        for r in &self.regions {
+            r.add_stats(&mut s);
         }
         s.samples_recorded_total = self.recorded_before.saturating_add(s.samples_recorded);
         s
@@ -394,7 +369,7 @@ impl GuidingField {
         SpatialCell {
             bounds: l.bounds,
             depth: l.depth,
-            tree: &self.trees[l.leaf],
+            region: &self.regions[l.leaf],
         }
     }
 
@@ -403,7 +378,7 @@ impl GuidingField {
         self.spatial.leaves().into_iter().map(|l| SpatialCell {
             bounds: l.bounds,
             depth: l.depth,
-            tree: &self.trees[l.leaf],
+            region: &self.regions[l.leaf],
         })
     }
 
@@ -423,20 +398,8 @@ impl GuidingField {
     }
 
     fn bytes(&self) -> u64 {
-        (self.spatial.bytes() + self.trees.iter().map(tree_bytes).sum::<usize>()) as u64
+        (self.spatial.bytes() + self.regions.iter().map(Region::bytes).sum::<usize>()) as u64
     }
-}
-
-/// Bytes a directional tree costs besides its interior nodes: the struct itself, its sampling
-/// tree's grid, and the sums of the one leaf that is not paid for by a node (`3·nodes + 1`
-/// leaves).
-const fn tree_fixed_bytes(deferred: bool) -> u64 {
-    (size_of::<DirectionalTree>() + GRID_BYTES) as u64 + leaf_bytes(deferred)
-}
-
-/// The heap and inline bytes of one spatial leaf's directional tree.
-fn tree_bytes(t: &DirectionalTree) -> usize {
-    t.bytes() + size_of::<DirectionalTree>()
 }
 
 /// A spatial leaf, as [`GuidingField::cells`] shows it.
@@ -446,13 +409,13 @@ pub struct SpatialCell<'a> {
     pub bounds: Aabb,
     /// Its depth in the spatial tree (the root is 0).
     pub depth: u32,
-    tree: &'a DirectionalTree,
+    region: &'a Region,
 }
 
 impl<'a> SpatialCell<'a> {
     /// The distribution queries at positions in this cell receive.
     pub fn distribution(&self) -> DirectionalDistribution<'a> {
-        DirectionalDistribution::of(self.tree)
+        self.region.distribution()
     }
 
     /// The leaves of the current iteration's recording topology and their moments. Under
@@ -460,6 +423,6 @@ impl<'a> SpatialCell<'a> {
     /// pending are spread first, so the moments
     /// hold every recorded sample's filtered share.
     pub fn recorded(&self) -> Vec<(DirectionalCell, Moments)> {
-        self.tree.recording.leaves()
+        self.region.recorded()
     }
 }

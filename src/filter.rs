@@ -1,39 +1,27 @@
-//! Filters (splatting): how one recorded sample is spread over the cells around it.
-//!
-//! Recording a sample only into the leaf that contains it starves small cells: a spatial leaf
-//! learns only from the points inside it, a directional leaf only from the directions inside it,
-//! so neighbouring cells' estimates of the same smooth light are independent and noisy. A filter
-//! spreads each sample over a footprint the size of the cell it landed in:
-//!
-//! - [`SpatialFilter::Stochastic`] moves the recorded position by a random offset within the
-//!   extent of its spatial leaf (one leaf receives the sample; on average the sample is spread
-//!   like a box). The offset comes from [`Sample::jitter`](crate::Sample::jitter), or from a hash
-//!   of the sample when the caller gives none, so recording stays deterministic.
-//! - [`SpatialFilter::Box`] adds the sample to every spatial leaf that a box the size of its leaf,
-//!   centred on the position, overlaps, weighted by the overlapped volume.
-//! - [`DirectionalFilter::Box`] adds the sample to every directional leaf that a square the size
-//!   of its leaf, centred on its point of the equal-area square, overlaps, weighted by the
-//!   overlapped area. Where the square crosses the border of the unit square, the part outside
-//!   is folded back in as the octahedral map folds the sphere (see
-//!   [`sphere`](crate::sphere)): the directions just past the border are those just inside it,
-//!   mirrored through the side's midpoint, so the sample reaches its neighbours on the sphere.
-//! - [`DirectionalFilter::DeferredBox`] is the same square, placed at refine: a sample adds to
-//!   the quadrant of its leaf it fell in (a quarter of the leaf), and
-//!   [`refine`](crate::GuidingField::refine) spreads each quadrant's sums from the quadrant's
-//!   centre. The spreading is then paid once per quadrant instead of once per sample; the
-//!   price is a footprint placed to within a quarter of the leaf. Reading a field's recorded
-//!   moments (saving, merging, [`recorded`](crate::SpatialCell::recorded)) spreads what is
-//!   pending first, so they always mean the same as under `Box`.
-//!
-//! Spatial footprints are clipped to the cube and the weights renormalized, and directional
-//! ones keep their area by folding, so every filter records a sample's whole weight. Sample
-//! *counts* (which drive spatial splits and the shrinkage of sparse cells) go to the cell
-//! containing the sample only.
+//! Filters (splatting): how one recorded sample is spread over the cells around it. What each
+//! filter does, and why, is on [`SpatialFilter`] and [`DirectionalFilter`].
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-/// How a sample is spread over spatial leaves (see the [module](self) notes).
+/// How a sample is spread over spatial leaves.
+///
+/// Recording a sample only into the leaf that contains it starves small cells: a spatial leaf
+/// learns only from the points inside it, a directional leaf only from the directions inside it,
+/// so neighbouring cells' estimates of the same smooth light are independent and noisy. A filter
+/// spreads each sample over a footprint the size of the cell it landed in:
+///
+/// - [`SpatialFilter::Stochastic`] moves the recorded position by a random offset within the
+///   extent of its spatial leaf (one leaf receives the sample; on average the sample is spread
+///   like a box). The offset comes from [`Sample::jitter`](crate::Sample::jitter), or from a hash
+///   of the sample when the caller gives none, so recording stays deterministic.
+/// - [`SpatialFilter::Box`] adds the sample to every spatial leaf that a box the size of its leaf,
+///   centred on the position, overlaps, weighted by the overlapped volume.
+///
+/// Spatial footprints are clipped to the cube and the weights renormalized, and directional
+/// ones keep their area by folding, so every filter records a sample's whole weight. Sample
+/// *counts* (which drive spatial splits and the shrinkage of sparse cells) go to the cell
+/// containing the sample only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum SpatialFilter {
@@ -46,7 +34,31 @@ pub enum SpatialFilter {
     Box,
 }
 
-/// How a sample is spread over directional leaves (see the [module](self) notes).
+/// How a sample is spread over directional leaves.
+///
+/// Recording a sample only into the leaf that contains it starves small cells: a spatial leaf
+/// learns only from the points inside it, a directional leaf only from the directions inside it,
+/// so neighbouring cells' estimates of the same smooth light are independent and noisy. A filter
+/// spreads each sample over a footprint the size of the cell it landed in:
+///
+/// - [`DirectionalFilter::Box`] adds the sample to every directional leaf that a square the size
+///   of its leaf, centred on its point of the equal-area square, overlaps, weighted by the
+///   overlapped area. Where the square crosses the border of the unit square, the part outside
+///   is folded back in as the octahedral map folds the sphere (see
+///   [`sphere`](crate::sphere)): the directions just past the border are those just inside it,
+///   mirrored through the side's midpoint, so the sample reaches its neighbours on the sphere.
+/// - [`DirectionalFilter::DeferredBox`] is the same square, placed at refine: a sample adds to
+///   the quadrant of its leaf it fell in (a quarter of the leaf), and
+///   [`refine`](crate::GuidingField::refine) spreads each quadrant's sums from the quadrant's
+///   centre. The spreading is then paid once per quadrant instead of once per sample; the
+///   price is a footprint placed to within a quarter of the leaf. Reading a field's recorded
+///   moments (saving, merging, [`recorded`](crate::SpatialCell::recorded)) spreads what is
+///   pending first, so they always mean the same as under `Box`.
+///
+/// Spatial footprints are clipped to the cube and the weights renormalized, and directional
+/// ones keep their area by folding, so every filter records a sample's whole weight. Sample
+/// *counts* (which drive spatial splits and the shrinkage of sparse cells) go to the cell
+/// containing the sample only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum DirectionalFilter {

@@ -11,7 +11,7 @@
 //! ## Data flow
 //!
 //! ```text
-//!   record   render threads, &self, lock-free     Sample ─► filter ─► spatial leaf ─► quadtree leaf moments
+//!   record   render threads, &self, lock-free     Sample ─► filter ─► region (spatial leaf) ─► quadtree leaf moments
 //!                                                  (mixture terms ─► the leaf's guide-selection sums;
 //!                                                   under L2Mixture also the value: f·sqrt(p_s·p_g)/q)
 //!   refine   between iterations, &mut self        (deferred box filter: pending quadrant sums ─► moments)
@@ -55,28 +55,35 @@
 //!
 //! ## Modules
 //!
+//! The modules are private; every public item is re-exported here, with one path each
+//! (`sphere`'s functions keep theirs: `sdguide::sphere::square_to_direction`). In the order a
+//! sample travels:
+//!
+//! - `sample`, `config`: what goes in — [`Sample`] (checked: [`RejectReason`]),
+//!   [`MixtureTerms`], [`GuidingConfig`] (validated: [`ConfigError`]).
+//! - `field`: [`GuidingField`], which routes samples, continuations and queries to the
+//!   spatial leaf that holds their position (`spatial`, the binary tree over the scene's
+//!   bounding cube; `filter`, [`SpatialFilter`] and [`DirectionalFilter`]).
+//! - `region`: one spatial leaf's state — its directional quadtree, its tally of normals and
+//!   their stored products, its guide probability, its continuation sums — and its part in
+//!   record, refine and merge.
+//! - `quadtree`: the double-buffered directional quadtree: `recording` (what `record` adds
+//!   to), `splat` (the directional box filter), `refine` (from the iteration's recording tree
+//!   to the next sampling and recording trees), `sampling` (what `sample` and `pdf` descend),
+//!   `horizon` and `surfaces` (the product with the clamped cosine).
+//! - `moments` ([`Moments`]: `Σ v/p`, `Σ v²/p`, `n`), `rule` ([`LeafRule`]: how moments become
+//!   leaf masses), `refinement` ([`Refinement`]: which directional cells to split).
+//! - `guide_probability`: the per-region probability of sampling the guide rather than the
+//!   BSDF, and whether the guide pays for its cost there.
+//! - `splitting`: efficiency-aware Russian roulette and splitting — [`Continuation`],
+//!   [`ContinuationEstimate`], [`Splitting`].
+//! - `distribution`: what queries return — [`DirectionalDistribution`] and its product with a
+//!   surface's clamped cosine, [`SurfaceDistribution`].
+//! - `cache` (save, load: [`CacheError`]; the format is `docs/cache-format.md`), `merge`
+//!   ([`MergeError`]), `stats` ([`FieldStats`]).
 //! - [`sphere`]: the equal-area map between directions and the unit square.
-//! - `moments`: the per-cell sums `Σ v/p`, `Σ v²/p`, `n` and their lock-free accumulation.
-//! - `rule`: [`LeafRule`], how moments become leaf masses, and the L2 rule inside the
-//!   guide–BSDF mixture.
-//! - `quadtree`: the double-buffered directional quadtree: `sampling` (what `sample` and `pdf`
-//!   descend), `recording` (what `record` adds to), `splat` (the directional box filter) and
-//!   `refine` (the next distribution and topology).
-//! - [`refinement`]: which directional cells to split — by flux share, or by the variance a
-//!   split removes.
-//! - `spatial`: the binary tree over the scene's bounding cube.
-//! - `field`: [`GuidingField`], which ties them together.
-//! - `distribution`: what queries return — [`DirectionalDistribution`], and its product with a
-//!   surface's clamped cosine, [`SurfaceDistribution`] (the descent is `quadtree`'s `horizon`).
-//! - `cache`: the cache file format (save, load, validation; see `docs/cache-format.md`).
-//! - [`filter`]: spreading a recorded sample over neighbouring cells (splatting).
-//! - `merge`: adding the statistics of fields trained in parallel.
-//! - [`mixture`]: variance-optimal selection probabilities among sampling techniques.
-//! - [`splitting`]: efficiency-aware Russian roulette and splitting — the continuation moments
-//!   each spatial leaf learns, and the factor they give.
-//! - [`guide_probability`]: the per-cell probability of sampling the guide rather than the BSDF.
-//! - `config`, `sample`, `stats`: what goes in ([`GuidingConfig`], [`Sample`]) and what comes
-//!   out ([`FieldStats`]).
+//! - `techniques`: [`TechniqueProbabilities`], variance-optimal selection probabilities among
+//!   any sampling techniques a renderer mixes (the paper's section 3).
 //!
 //! The analytic light fields, the training workload and the quality harness the tests and the
 //! documented tables use live in the workspace's `lab` crate, not here.
@@ -89,37 +96,47 @@ mod cache;
 mod config;
 mod distribution;
 mod field;
-pub mod filter;
-pub mod guide_probability;
+mod filter;
+mod guide_probability;
 mod merge;
-pub mod mixture;
 mod moments;
 mod quadtree;
-pub mod refinement;
+mod refinement;
+mod region;
 mod rule;
 mod sample;
 mod spatial;
 pub mod sphere;
-pub mod splitting;
+mod splitting;
 mod stats;
+mod techniques;
 
 /// The vector types of the API (`Vec2`, `Vec3`), from the glam version sdguide is built with.
 pub use glam;
 
+// The public surface: every item has this one path (`sphere`'s functions are reached through
+// their module, `sdguide::sphere::…`).
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH, MIN_UNIFORM_FRACTION};
 pub use distribution::{DirectionalDistribution, SurfaceDistribution};
 pub use field::{GuidingField, SpatialCell};
 pub use filter::{DirectionalFilter, SpatialFilter};
+pub use guide_probability::{
+    DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
+    MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
+};
 pub use merge::MergeError;
 pub use moments::Moments;
 pub use quadtree::DirectionalCell;
 pub use refinement::Refinement;
 pub use rule::LeafRule;
 pub use sample::{MixtureTerms, RejectReason, Sample};
-pub use splitting::{Continuation, ContinuationEstimate, Splitting, SplittingMode};
+pub use splitting::{
+    Continuation, ContinuationEstimate, MIN_CONTINUATIONS, Splitting, SplittingMode, continuations,
+};
 pub use stats::{FieldStats, Rejections};
+pub use techniques::{MIN_TECHNIQUE_SAMPLES, TechniqueError, TechniqueProbabilities};
 
 #[cfg(test)]
 mod tests {

@@ -5,7 +5,7 @@
 //! recorded from all their samples. Merge checks that the two fields really share everything but
 //! those sums; `refine` afterwards proceeds as if one machine had done all the work.
 
-use crate::GuidingField;
+use crate::field::GuidingField;
 use std::fmt;
 
 /// Why two fields cannot be merged.
@@ -88,48 +88,13 @@ impl GuidingField {
         if self.spatial.nodes() != other.spatial.nodes() {
             return differs("the spatial trees differ".into());
         }
-        for (i, (a, b)) in self.trees.iter().zip(&other.trees).enumerate() {
-            if a.sampling != b.sampling {
-                return differs(format!("the distributions of tree {i} differ"));
-            }
-            if a.recording.nodes != b.recording.nodes {
-                return differs(format!("the recording topologies of tree {i} differ"));
-            }
-            if (a.selection.learned, a.selection.off()) != (b.selection.learned, b.selection.off())
-            {
-                return differs(format!("the guide probabilities of tree {i} differ"));
-            }
-            if a.continuations.estimate != b.continuations.estimate {
-                return differs(format!("the continuation estimates of tree {i} differ"));
-            }
-            if a.surfaces.products != b.surfaces.products {
-                return differs(format!("the stored surface products of tree {i} differ"));
-            }
+        for (i, (a, b)) in self.regions.iter().zip(&other.regions).enumerate() {
+            a.same_start(b)
+                .or_else(|what| differs(format!("the {what} of tree {i} differ")))?;
         }
         // Checked everything first: a refused merge leaves this field untouched.
-        for (a, b) in self.trees.iter_mut().zip(&other.trees) {
-            // Sums the deferred filter holds back join the moments they are bound for.
-            a.recording.flush_pending_mut();
-            b.recording.flush_pending();
-            for (x, y) in a
-                .recording
-                .moments
-                .iter_mut()
-                .zip(b.recording.moments.iter())
-            {
-                x.add_moments(y.get());
-            }
-            for (x, y) in a
-                .recording
-                .quadrants
-                .iter_mut()
-                .zip(b.recording.quadrants.iter())
-            {
-                x.add_quadrants(y.get());
-            }
-            a.selection.add_sums(b.selection.sums());
-            a.continuations.add_recorded(&b.continuations.recorded());
-            a.surfaces.add_tally(&b.surfaces);
+        for (a, b) in self.regions.iter_mut().zip(&other.regions) {
+            a.add(b);
         }
         self.rejected.add(&other.rejected.get());
         Ok(())

@@ -42,7 +42,8 @@ pub struct Sample {
     /// sample, so recording is deterministic either way. Out-of-range values are clamped.
     pub jitter: Option<Vec3>,
     /// What the guide-vs-BSDF selection learns from, when the direction was drawn from the
-    /// one-sample mixture of BSDF sampling and guiding (see [`guide_probability`](crate::guide_probability)).
+    /// one-sample mixture of BSDF sampling and guiding (see
+    /// [`DirectionalDistribution::guide_probability`](crate::DirectionalDistribution::guide_probability)).
     pub mixture: Option<MixtureTerms>,
     /// The shading normal at `position` (any length), the one the renderer passes to
     /// [`at_surface`](crate::DirectionalDistribution::at_surface) there. Each spatial cell

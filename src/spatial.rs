@@ -9,7 +9,7 @@
 //! The first 12 levels (4 per axis) are skipped through a 16³ lookup grid that stores, for each
 //! grid cell, where the descent stands after them: a query then walks only the levels below.
 
-use crate::Aabb;
+use crate::bounds::Aabb;
 use crate::filter::overlap;
 use glam::Vec3;
 use std::collections::BinaryHeap;

@@ -1,45 +1,11 @@
 //! How many continuations to trace from a path vertex: efficiency-aware Russian roulette and
 //! splitting, from moments of the continuations' contributions that the field learns.
 //!
-//! Choosing a direction at a vertex cannot remove the variance of what the path finds after it;
-//! choosing how many continuations to trace can. At a vertex the renderer traces `n`
-//! continuations with `E[n] = q` (the *splitting factor*; below 1 it is a survival probability)
-//! and weighs each by `1/q`, which keeps the estimate unbiased for any `q > 0`. Each
-//! continuation estimates the light the vertex reflects, `L = f·cos·L_i / p` for its sampled
-//! direction, with mean `μ` and second moment `M₂`, and costs `c` (rays, say). Its share of the
-//! pixel estimate's per-sample variance, with `T` the path's throughput weight from the camera
-//! to the vertex (every earlier `1/q` included), is
-//!
-//! ```text
-//!   T²·(M₂/q − μ²)        roulette, q ≤ 1
-//!   T²·(M₂ − μ²)/q        splitting, q ≥ 1 (plus a small term from rounding q)
-//! ```
-//!
-//! and its share of the cost `q·c`. The image is judged by its relative error, the mean over
-//! pixels of `V_p / P_p²` (`P_p² = I_p² + ε`), at the cost of its mean camera sample `C̄`.
-//! Minimizing the product of the two — the inverse of the render's efficiency — over `q` at one
-//! vertex, with the rest of the image held at its current relative variance `V̄`, gives
-//!
-//! ```text
-//!   q* = (T / P) · sqrt( a · C̄ / (V̄ · c) ),    a = M₂ (roulette), a = M₂ − μ² (splitting)
-//! ```
-//!
-//! This is the splitting factor of Rath et al. 2022 ("EARS: Efficiency-aware Russian roulette
-//! and splitting"), with the variance rather than the second moment where the vertex splits.
-//! [`Splitting::factor`] evaluates it: `q*` from `M₂` when that is below 1, else from the
-//! variance, at least 1; clamped to `[min_survival, max_splits]`, so that an estimate that is
-//! wrong can make a region noisier but never drop it (no zero survival, no bias).
-//!
-//! The field learns `μ`, `M₂` and `c` per spatial leaf from [`Continuation`]s the renderer
-//! records (the value of one traced continuation, and its cost), lock-free like every other
-//! statistic. At [`refine`](crate::GuidingField::refine) a leaf that recorded at least
-//! [`MIN_CONTINUATIONS`] continuations in the iteration replaces its estimate by them; one that
-//! recorded fewer adds them to the estimate it had, so sparse leaves accumulate. Spatial
-//! children start from their parent's estimate. The estimate and the iteration's sums are saved
-//! in the cache and merged exactly.
+//! The derivation and how the field learns the moments are on [`Splitting`].
 
+use crate::config::ConfigError;
 use crate::moments::AtomicF64;
-use crate::{ConfigError, RejectReason};
+use crate::sample::RejectReason;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -236,7 +202,44 @@ pub enum SplittingMode {
 }
 
 /// The image-wide terms of the splitting factor, and its bounds: what a renderer sets once per
-/// pass (see the [module docs](crate::splitting) for the derivation).
+/// pass.
+///
+/// Choosing a direction at a vertex cannot remove the variance of what the path finds after it;
+/// choosing how many continuations to trace can. At a vertex the renderer traces `n`
+/// continuations with `E[n] = q` (the *splitting factor*; below 1 it is a survival probability)
+/// and weighs each by `1/q`, which keeps the estimate unbiased for any `q > 0`. Each
+/// continuation estimates the light the vertex reflects, `L = f·cos·L_i / p` for its sampled
+/// direction, with mean `μ` and second moment `M₂`, and costs `c` (rays, say). Its share of the
+/// pixel estimate's per-sample variance, with `T` the path's throughput weight from the camera
+/// to the vertex (every earlier `1/q` included), is
+///
+/// ```text
+///   T²·(M₂/q − μ²)        roulette, q ≤ 1
+///   T²·(M₂ − μ²)/q        splitting, q ≥ 1 (plus a small term from rounding q)
+/// ```
+///
+/// and its share of the cost `q·c`. The image is judged by its relative error, the mean over
+/// pixels of `V_p / P_p²` (`P_p² = I_p² + ε`), at the cost of its mean camera sample `C̄`.
+/// Minimizing the product of the two — the inverse of the render's efficiency — over `q` at one
+/// vertex, with the rest of the image held at its current relative variance `V̄`, gives
+///
+/// ```text
+///   q* = (T / P) · sqrt( a · C̄ / (V̄ · c) ),    a = M₂ (roulette), a = M₂ − μ² (splitting)
+/// ```
+///
+/// This is the splitting factor of Rath et al. 2022 ("EARS: Efficiency-aware Russian roulette
+/// and splitting"), with the variance rather than the second moment where the vertex splits.
+/// [`Splitting::factor`] evaluates it: `q*` from `M₂` when that is below 1, else from the
+/// variance, at least 1; clamped to `[min_survival, max_splits]`, so that an estimate that is
+/// wrong can make a region noisier but never drop it (no zero survival, no bias).
+///
+/// The field learns `μ`, `M₂` and `c` per spatial leaf from [`Continuation`]s the renderer
+/// records (the value of one traced continuation, and its cost), lock-free like every other
+/// statistic. At [`refine`](crate::GuidingField::refine) a leaf that recorded at least
+/// [`MIN_CONTINUATIONS`] continuations in the iteration replaces its estimate by them; one that
+/// recorded fewer adds them to the estimate it had, so sparse leaves accumulate. Spatial
+/// children start from their parent's estimate. The estimate and the iteration's sums are saved
+/// in the cache and merged exactly.
 ///
 /// ```
 /// use sdguide::{ContinuationEstimate, Splitting, SplittingMode};
@@ -364,7 +367,7 @@ impl Splitting {
 /// that is not finite and positive traces one continuation with weight 1.
 ///
 /// ```
-/// use sdguide::splitting::continuations;
+/// use sdguide::continuations;
 /// assert_eq!(continuations(2.25, 0.1), (3, 1.0 / 2.25));
 /// assert_eq!(continuations(2.25, 0.5), (2, 1.0 / 2.25));
 /// assert_eq!(continuations(0.5, 0.7), (0, 2.0));

@@ -1,6 +1,6 @@
 //! What a field reports about itself: size, depth, samples taken and samples turned away.
 
-use crate::RejectReason;
+use crate::sample::RejectReason;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -2,7 +2,7 @@
 //! panic), keeps reading old files, and merges workers' statistics exactly.
 
 use glam::Vec3;
-use sdguide::guide_probability::MAX_GUIDE_PROBABILITY;
+use sdguide::MAX_GUIDE_PROBABILITY;
 use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
     MergeError, Refinement, Sample,

@@ -2,10 +2,8 @@
 //! estimator's second moment, found by brute force.
 
 use glam::Vec3;
-use sdguide::guide_probability::{
-    INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
-};
 use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
+use sdguide::{INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
 use sdguide_lab::quality::golden_section_min;
 use sdguide_lab::synthetic::{Bsdf, Rng, vmf_density};
 

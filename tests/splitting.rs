@@ -4,7 +4,7 @@
 //! rejected and counted.
 
 use glam::Vec3;
-use sdguide::splitting::continuations;
+use sdguide::continuations;
 use sdguide::{
     Aabb, Continuation, ContinuationEstimate, GuidingConfig, GuidingField, RejectReason, Splitting,
     SplittingMode,

@@ -97,11 +97,18 @@ static void *record(void *arg) {
             }
             sdg_distribution_destroy(dist);
             float f = light(d); /* the integrand: light times a constant BSDF */
-            /* The points lie on no surface: a zero normal (a renderer passes its shading normal).
-               No roulette decided what arrived: no second moment (0), value² serves. */
-            sdg_vec3 no_normal = {0.0f, 0.0f, 0.0f};
-            sdg_sample s = {x, d, light(d), a * guide_pdf + (1.0f - a) * bsdf_pdf, f, bsdf_pdf, guide_pdf,
-                            no_normal, 0.0f};
+            /* The points lie on no surface: no normal (a renderer passes its shading normal with
+               SDG_SAMPLE_NORMAL). No roulette decided what arrived: no second moment, value²
+               serves. The mixture terms are set. */
+            sdg_sample s = {0};
+            s.position = x;
+            s.direction = d;
+            s.value = light(d);
+            s.pdf = a * guide_pdf + (1.0f - a) * bsdf_pdf;
+            s.integrand = f;
+            s.bsdf_pdf = bsdf_pdf;
+            s.guide_pdf = guide_pdf;
+            s.flags = SDG_SAMPLE_MIXTURE;
             batch[i] = s;
         }
         CHECK(sdg_field_record_batch(j->field, batch, BATCH) == SDG_STATUS_OK, "record");

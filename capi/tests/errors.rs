@@ -147,21 +147,25 @@ fn non_finite_inputs_are_rejected_or_refused() {
             integrand: 1.0,
             bsdf_pdf: -1.0,
             guide_pdf: 0.1,
+            flags: SDG_SAMPLE_MIXTURE,
             ..good
         };
         assert_eq!(
             sdg_field_record(f, &bad_mixture),
             sdg_status::SampleRejected
         );
-        // So is the second moment: a negative one rejects the sample as a bad value; 0 means
-        // none.
+        // So is the second moment: a negative one rejects the sample as a bad value; without
+        // its flag it is not read.
         let bad_moment = sdg_sample {
             second_moment: -1.0,
+            flags: SDG_SAMPLE_SECOND_MOMENT,
             ..good
         };
+
         assert_eq!(sdg_field_record(f, &bad_moment), sdg_status::SampleRejected);
         let moment = sdg_sample {
             second_moment: 0.5,
+            flags: SDG_SAMPLE_SECOND_MOMENT,
             ..good
         };
         assert_eq!(sdg_field_record(f, &moment), sdg_status::Ok);
@@ -635,5 +639,56 @@ fn continuations_are_recorded_and_give_a_splitting_factor() {
             sdg_status::NullPointer
         );
         sdg_field_destroy(f);
+    }
+}
+
+#[test]
+fn optional_fields_are_read_only_with_their_flags() {
+    let f = field();
+    let good = sdg_sample {
+        position: v(0.5, 0.5, 0.5),
+        direction: v(0.0, 0.0, 1.0),
+        value: 1.0,
+        pdf: 0.5,
+        ..Default::default()
+    };
+    // SAFETY: valid pointers throughout.
+    unsafe {
+        // Values that would reject the sample are not read without their flags.
+        let unflagged = sdg_sample {
+            integrand: 1.0,
+            bsdf_pdf: -1.0,
+            second_moment: -1.0,
+            normal: v(f32::NAN, 0.0, 0.0),
+            ..good
+        };
+        assert_eq!(sdg_field_record(f, &unflagged), sdg_status::Ok);
+        for flag in [SDG_SAMPLE_MIXTURE, SDG_SAMPLE_SECOND_MOMENT] {
+            let flagged = sdg_sample {
+                flags: flag,
+                ..unflagged
+            };
+            assert_eq!(sdg_field_record(f, &flagged), sdg_status::SampleRejected);
+        }
+        sdg_field_destroy(f);
+
+        // The guide cost: absent without its flag (whatever the number), validated with it.
+        let config = config();
+        assert_eq!(config.flags & SDG_CONFIG_GUIDE_COST, SDG_CONFIG_GUIDE_COST);
+        let mut out = null_mut();
+        let absent = sdg_config {
+            guide_cost: f32::NAN,
+            flags: 0,
+            ..config
+        };
+        let (lo, hi) = (v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0));
+        assert_eq!(sdg_field_create(&absent, lo, hi, &mut out), sdg_status::Ok);
+        sdg_field_destroy(out);
+        let bad = sdg_config {
+            guide_cost: f32::NAN,
+            ..config
+        };
+        assert_eq!(sdg_field_create(&bad, lo, hi, &mut out), sdg_status::Config);
+        assert!(last_error().contains("guide_cost"), "{}", last_error());
     }
 }

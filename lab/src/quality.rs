@@ -36,7 +36,7 @@
 use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
 use glam::Vec3;
 use rayon::prelude::*;
-use sdguide::guide_probability::MIN_GUIDE_PROBABILITY;
+use sdguide::MIN_GUIDE_PROBABILITY;
 use sdguide::sphere::{SPHERE_AREA, square_to_direction};
 use sdguide::{ConfigError, DirectionalCell, DirectionalDistribution, GuidingConfig, GuidingField};
 

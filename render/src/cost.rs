@@ -6,9 +6,10 @@
 //! measures; a ratio within one round of a fraction of a second cancels the drift, and
 //! alternating which pass goes first cancels what one pass leaves in the cache for the next.
 
-use crate::integrator::{Guide, Guiding};
+use crate::integrator::Guiding;
+use crate::method::Rrs;
 use crate::passes::PassImage;
-use crate::render::{Rrs, render_pass_image};
+use crate::render::render_pass_image;
 use crate::scene::Scene;
 use sdguide::GuidingField;
 use std::time::{Duration, Instant};
@@ -49,7 +50,7 @@ pub fn paired_cost(
     rounds: u32,
 ) -> Cost {
     let guiding = Guiding {
-        field: Guide::Sdguide(field),
+        field,
         record: false,
         guide_probability: None,
     };
@@ -85,7 +86,7 @@ pub fn paired_cost(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{Method, Training, render};
+    use crate::method::{Budget, Method, Training, render};
     use crate::scenes;
     use sdguide::GuidingConfig;
 
@@ -96,10 +97,10 @@ mod tests {
             &scene,
             Method::Guided(sdguide::LeafRule::L2),
             (32, 24),
-            crate::render::Budget {
+            Budget {
                 time: None,
                 spp: Some(8),
-                ..crate::render::Budget::default()
+                ..Budget::default()
             },
             1,
             Training {

@@ -28,20 +28,19 @@
 //! inverse, and records every one it traced as a `Continuation` (its estimate of the reflected
 //! light and the rays it cost).
 //!
-//! With the `openpgl` feature, the same four points serve Intel Open PGL (`Guide::OpenPgl`):
+//! The integrator is generic over the guiding [`Backend`]: with the `openpgl` feature the same
+//! four points serve Intel Open PGL:
 //! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
 //! place, so that the two libraries are compared in one renderer.
 
+use crate::backend::{Backend, Recorded, VertexGuide};
 use crate::geometry::{Frame, Ray};
-use crate::material::{Material, luminance};
+use crate::material::luminance;
 use crate::rng::Rng;
+use crate::sampler::VertexSampler;
 use crate::scene::Scene;
-use glam::Vec2;
 use glam::Vec3;
-use sdguide::splitting::continuations;
-use sdguide::{
-    Continuation, ContinuationEstimate, GuidingField, Sample, Splitting, SurfaceDistribution,
-};
+use sdguide::{Continuation, GuidingField, Splitting, continuations};
 
 /// Longest path, in scattering events.
 pub const MAX_DEPTH: usize = 10;
@@ -60,59 +59,10 @@ pub enum Roulette {
     Off,
 }
 
-/// The guiding field a render samples: sdguide's, or the peer's.
-#[derive(Clone, Copy)]
-pub enum Guide<'a> {
-    /// An sdguide field.
-    Sdguide(&'a GuidingField),
-    /// An Intel Open PGL field.
-    #[cfg(feature = "openpgl")]
-    OpenPgl(&'a crate::openpgl::Guide),
-}
-
-/// The probability of sampling Open PGL's guide instead of the BSDF: ½, Cycles' default
-/// surface guiding probability (the peer learns none).
-#[cfg(feature = "openpgl")]
-pub const PEER_GUIDE_PROBABILITY: f32 = 0.5;
-
-impl<'a> From<&'a GuidingField> for Guide<'a> {
-    fn from(field: &'a GuidingField) -> Self {
-        Guide::Sdguide(field)
-    }
-}
-
-impl<'a> Guide<'a> {
-    /// Whether a vertex's lookup draws a random number (Open PGL's stochastic spatial lookup).
-    fn draws_lookup(self) -> bool {
-        match self {
-            Guide::Sdguide(_) => false,
-            #[cfg(feature = "openpgl")]
-            Guide::OpenPgl(_) => true,
-        }
-    }
-
-    /// The guide's distribution at a vertex; `None` where it has none (the peer's before its
-    /// first update).
-    #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))]
-    fn at(self, position: Vec3, normal: Vec3, lookup: f32) -> Option<GuideView<'a>> {
-        match self {
-            // The product with the surface's clamped cosine: the BSDF is zero below it.
-            Guide::Sdguide(field) => Some(GuideView::Sdguide(
-                field.distribution(position).at_surface(normal),
-            )),
-            #[cfg(feature = "openpgl")]
-            Guide::OpenPgl(field) => field
-                .distribution(position, normal, lookup)
-                .map(GuideView::OpenPgl),
-        }
-    }
-}
-
-/// How a render uses a guiding field.
-#[derive(Clone, Copy)]
-pub struct Guiding<'a> {
+/// How a render uses a guiding backend.
+pub struct Guiding<'a, B: Backend> {
     /// The field to sample (and to record into when `record` is set).
-    pub field: Guide<'a>,
+    pub field: &'a B,
     /// Whether finished paths are recorded into the field (training passes).
     pub record: bool,
     /// Probability of sampling the guide instead of the BSDF; `None` uses the field's learned
@@ -120,177 +70,14 @@ pub struct Guiding<'a> {
     pub guide_probability: Option<f32>,
 }
 
-/// A scattering direction drawn from a vertex's sampling mixture.
-#[derive(Clone, Copy, Debug)]
-pub struct DirectionSample {
-    /// World-space unit direction.
-    pub direction: Vec3,
-    /// The pdfs of `direction`.
-    pub pdf: MixturePdf,
-}
-
-/// The pdfs of one direction under the mixture and under its two techniques.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MixturePdf {
-    /// `q = a·guide + (1 − a)·bsdf`: what the direction was drawn with.
-    pub mixture: f32,
-    /// The BSDF sampling pdf.
-    pub bsdf: f32,
-    /// The guiding distribution's pdf (0 without guiding).
-    pub guide: f32,
-}
-
-/// A guide's directional distribution at one vertex.
-enum GuideView<'a> {
-    Sdguide(SurfaceDistribution<'a>),
-    #[cfg(feature = "openpgl")]
-    OpenPgl(crate::openpgl::Distribution),
-}
-
-impl GuideView<'_> {
-    /// A direction, and its pdf where the guide returns it with the draw (sdguide's is
-    /// exactly what `pdf` would say, so no second descent is needed).
-    fn sample(&self, u: Vec2) -> (Vec3, Option<f32>) {
-        match self {
-            GuideView::Sdguide(d) => {
-                let (direction, pdf) = d.sample(u);
-                (direction, Some(pdf))
-            }
-            #[cfg(feature = "openpgl")]
-            GuideView::OpenPgl(d) => (d.sample(u), None),
-        }
-    }
-
-    fn pdf(&self, direction: Vec3) -> f32 {
-        match self {
-            GuideView::Sdguide(d) => d.pdf(direction),
-            #[cfg(feature = "openpgl")]
-            GuideView::OpenPgl(d) => d.pdf(direction),
-        }
-    }
-
-    /// The continuation estimate of the guide's cell (sdguide's guide only).
-    fn continuation(&self) -> Option<ContinuationEstimate> {
-        match self {
-            GuideView::Sdguide(d) => Some(d.continuation()),
-            #[cfg(feature = "openpgl")]
-            GuideView::OpenPgl(_) => None,
-        }
-    }
-
-    fn guide_probability(&self) -> f32 {
-        match self {
-            GuideView::Sdguide(d) => d.guide_probability(),
-            #[cfg(feature = "openpgl")]
-            GuideView::OpenPgl(_) => PEER_GUIDE_PROBABILITY,
-        }
+// Not derived: a derive would ask `B: Copy`, and only the reference is copied.
+impl<B: Backend> Clone for Guiding<'_, B> {
+    fn clone(&self) -> Self {
+        *self
     }
 }
 
-/// The directional sampling strategy at one vertex: the BSDF's, mixed with the guide's when
-/// there is a guiding field.
-pub struct VertexSampler<'a> {
-    frame: Frame,
-    wo: Vec3,
-    material: &'a Material,
-    guide: Option<GuideView<'a>>,
-    /// Probability of drawing from the guide.
-    a: f32,
-}
-
-impl<'a> VertexSampler<'a> {
-    /// The strategy at `position`, with shading normal `normal` (facing the viewer), outgoing
-    /// world direction `wo`, the surface's material, and the sdguide field if any.
-    pub fn new(
-        position: Vec3,
-        normal: Vec3,
-        wo: Vec3,
-        material: &'a Material,
-        field: Option<&'a GuidingField>,
-    ) -> Self {
-        Self::with_guide(position, normal, wo, material, field.map(Guide::from), 0.0)
-    }
-
-    /// The strategy with any guide; `lookup` is a uniform random number for a guide whose
-    /// spatial lookup is stochastic (Open PGL's), unused by sdguide's.
-    pub fn with_guide(
-        position: Vec3,
-        normal: Vec3,
-        wo: Vec3,
-        material: &'a Material,
-        guide: Option<Guide<'a>>,
-        lookup: f32,
-    ) -> Self {
-        let frame = Frame::new(normal);
-        // GUIDING (1): one lookup per vertex; sdguide's distribution is a lock-free view.
-        let guide = guide.and_then(|g| g.at(position, normal, lookup));
-        let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
-        VertexSampler {
-            frame,
-            wo: frame.to_local(wo),
-            material,
-            guide,
-            a,
-        }
-    }
-
-    /// The same strategy with the guide drawn with probability `a` instead of the learned one.
-    pub fn with_guide_probability(self, a: f32) -> Self {
-        VertexSampler { a, ..self }
-    }
-
-    /// The same strategy without its guide where the guide is never drawn (`a = 0`: the field
-    /// turned it off in this cell): BSDF sampling alone, with no guide pdf to evaluate. A
-    /// training pass keeps it, since the recorded mixture terms need the guide's pdf for the
-    /// cell to tell whether the guide pays again.
-    pub fn without_idle_guide(self) -> Self {
-        let guide = self.guide.filter(|_| self.a > 0.0);
-        VertexSampler { guide, ..self }
-    }
-
-    /// The BSDF `f(wo, wi)·|cos θ_i|` for a world direction.
-    pub fn bsdf_cos(&self, direction: Vec3) -> Vec3 {
-        let wi = self.frame.to_local(direction);
-        self.material.eval(self.wo, wi) * wi.z.abs()
-    }
-
-    /// The pdfs of drawing the world direction `direction`.
-    pub fn pdf(&self, direction: Vec3) -> MixturePdf {
-        // GUIDING (2): MIS and the estimator need the pdf of the whole mixture.
-        let guide = self.guide.as_ref().map_or(0.0, |g| g.pdf(direction));
-        self.mixture_pdf(direction, guide)
-    }
-
-    /// The pdfs of `direction`, whose guide pdf is `guide`.
-    fn mixture_pdf(&self, direction: Vec3, guide: f32) -> MixturePdf {
-        let bsdf = self.material.pdf(self.wo, self.frame.to_local(direction));
-        MixturePdf {
-            mixture: self.a * guide + (1.0 - self.a) * bsdf,
-            bsdf,
-            guide,
-        }
-    }
-
-    /// Draws a direction: from the guide with probability `a`, else from the BSDF. `None` when
-    /// the BSDF draw fails (leaves the hemisphere).
-    pub fn sample(&self, rng: &mut Rng) -> Option<DirectionSample> {
-        let choice = rng.next_f32();
-        let lobe = rng.next_f32();
-        let u = rng.next_vec2();
-        let (direction, guide_pdf) = match &self.guide {
-            Some(guide) if choice < self.a => guide.sample(u),
-            _ => {
-                let s = self.material.sample(self.wo, lobe, u)?;
-                (self.frame.to_world(s.wi), None)
-            }
-        };
-        let pdf = match guide_pdf {
-            Some(guide) => self.mixture_pdf(direction, guide),
-            None => self.pdf(direction),
-        };
-        (pdf.mixture > 0.0).then_some(DirectionSample { direction, pdf })
-    }
-}
+impl<B: Backend> Copy for Guiding<'_, B> {}
 
 /// MIS weight of a strategy with pdf `a` against one with pdf `b` (power heuristic, β = 2).
 fn power_heuristic(a: f32, b: f32) -> f32 {
@@ -300,7 +87,7 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 
 /// How the paths of a pass decide how many continuations to trace from a vertex: by classic
 /// throughput roulette, or efficiency-aware roulette and splitting from the continuation
-/// estimates of a field ([`sdguide::splitting`]).
+/// estimates of a field ([`sdguide::Splitting`]).
 #[derive(Clone, Copy)]
 pub struct Continuations<'a> {
     /// The field whose cells hold the continuation estimates (and learn them when `record`).
@@ -330,16 +117,21 @@ pub struct PathSample {
 
 /// The radiance arriving along `ray` (one path sample), guided when `guiding` is given, with
 /// classic roulette.
-pub fn radiance(scene: &Scene, guiding: Option<Guiding<'_>>, ray: Ray, rng: &mut Rng) -> Vec3 {
+pub fn radiance<B: Backend>(
+    scene: &Scene,
+    guiding: Option<Guiding<'_, B>>,
+    ray: Ray,
+    rng: &mut Rng,
+) -> Vec3 {
     path_sample(scene, guiding, (Roulette::Classic, None), ray, rng).radiance
 }
 
 /// The radiance arriving along `ray` and its cost, guided when `guiding` is given, with
 /// roulette and splitting by `continuations` when given (`pixel`: the pixel's index into its
 /// `pixels`), else with `roulette`.
-pub fn path_sample(
+pub fn path_sample<B: Backend>(
     scene: &Scene,
-    guiding: Option<Guiding<'_>>,
+    guiding: Option<Guiding<'_, B>>,
     (roulette, continuations): (Roulette, Option<(&Continuations<'_>, usize)>),
     ray: Ray,
     rng: &mut Rng,
@@ -365,9 +157,9 @@ pub fn path_sample(
 }
 
 /// One camera sample's tree of continuations, traced depth first.
-struct Path<'s, 'a> {
+struct Path<'s, 'a, B: Backend> {
     scene: &'s Scene,
-    guiding: Option<Guiding<'a>>,
+    guiding: Option<Guiding<'a, B>>,
     continuations: Option<Continuations<'a>>,
     /// The splitting policy and the pixel's `sqrt(I² + ε)`, when there is a policy.
     policy: Option<(Splitting, f32)>,
@@ -429,7 +221,7 @@ impl FirstRoulette {
     }
 }
 
-impl Path<'_, '_> {
+impl<'a, B: Backend> Path<'_, 'a, B> {
     /// The radiance arriving along `ray`, which leaves the path's `depth`-th scattering event
     /// with throughput `beta` from the camera (every roulette and splitting weight included);
     /// `previous` is the pdf the ray's direction was drawn with and where (`None` for a camera
@@ -539,12 +331,14 @@ impl Path<'_, '_> {
                 let field = self.continuations?.field;
                 // The guide's view of the same field already holds its cell's estimate: no
                 // second lookup.
-                let same = matches!(guide, Some(Guide::Sdguide(f)) if std::ptr::eq(f, field));
+                let same = guide
+                    .and_then(Backend::as_field)
+                    .is_some_and(|f| std::ptr::eq(f, field));
                 let estimate = sampler
                     .guide
                     .as_ref()
                     .filter(|_| same)
-                    .and_then(GuideView::continuation)
+                    .and_then(VertexGuide::continuation)
                     .unwrap_or_else(|| field.continuation(hit.position));
                 let q = splitting.factor(&estimate, luminance(beta), pixel)?;
                 // The camera vertex only plays roulette: there the rest of the image, which the
@@ -602,7 +396,7 @@ impl Path<'_, '_> {
     fn continue_from(
         &mut self,
         hit: &crate::scene::Hit,
-        sampler: &VertexSampler<'_>,
+        sampler: &VertexSampler<'_, B>,
         depth: usize,
         beta: Vec3,
         classic: bool,
@@ -657,14 +451,16 @@ impl Path<'_, '_> {
             // learns from.
             let integrand = luminance(f * incident);
             let value = luminance(incident);
-            record(
-                g.field,
-                (hit.position, sampler.frame.normal()),
-                &s,
-                (value, roulette.second_moment(value)),
+            g.field.record(&Recorded {
+                position: hit.position,
+                normal: sampler.frame.normal(),
+                direction: s.direction,
+                pdf: s.pdf,
+                incident: value,
+                second_moment: roulette.second_moment(value),
                 integrand,
                 distance,
-            );
+            });
         }
         if let Some(c) = self.continuations.filter(|c| c.record) {
             c.field.record_continuation(&Continuation {
@@ -678,43 +474,6 @@ impl Path<'_, '_> {
             ..roulette
         };
         (reflected, roulette)
-    }
-}
-
-/// Records one vertex into the guide: at the position, with the shading normal the guide was
-/// queried with there, the radiance `incident` (a luminance) arrived along the sampled
-/// direction `s`, with the estimate of its square without roulette, `integrand` is `f·L_i`
-/// there, and `distance` is how far the direction reached (Open PGL's parallax compensation).
-fn record(
-    guide: Guide<'_>,
-    (position, normal): (Vec3, Vec3),
-    s: &DirectionSample,
-    (incident, second_moment): (f32, f32),
-    integrand: f32,
-    #[cfg_attr(not(feature = "openpgl"), allow(unused_variables))] distance: f32,
-) {
-    match guide {
-        Guide::Sdguide(field) => {
-            let sample = Sample {
-                position,
-                direction: s.direction,
-                value: incident,
-                pdf: s.pdf.mixture,
-                normal: Some(normal),
-                second_moment: Some(second_moment),
-                ..Sample::default()
-            }
-            .with_mixture(integrand, s.pdf.bsdf, s.pdf.guide);
-            field.record(&sample);
-        }
-        #[cfg(feature = "openpgl")]
-        Guide::OpenPgl(field) => field.record(&[crate::openpgl::Record {
-            position,
-            direction: s.direction,
-            radiance: incident,
-            pdf: s.pdf.mixture,
-            distance,
-        }]),
     }
 }
 

@@ -13,12 +13,14 @@
 // Safe code only, but for the FFI to the peer library (the `openpgl` feature).
 #![deny(unsafe_code)]
 
+pub mod backend;
 pub mod bvh;
 pub mod cost;
 pub mod geometry;
 pub mod image;
 pub mod integrator;
 pub mod material;
+pub mod method;
 #[cfg(feature = "openpgl")]
 pub mod openpgl;
 pub mod passes;
@@ -26,5 +28,6 @@ pub mod probe;
 pub mod reference;
 pub mod render;
 pub mod rng;
+pub mod sampler;
 pub mod scene;
 pub mod scenes;

@@ -12,6 +12,7 @@
 //! so a vertex costs an `Init`, not an allocation.
 #![allow(unsafe_code)]
 
+use crate::backend::{Backend, Recorded, VertexGuide};
 use glam::{Vec2, Vec3};
 use sdguide::Aabb;
 use std::cell::RefCell;
@@ -451,6 +452,53 @@ impl Drop for Distribution {
             // A thread being torn down has no pool left; the object is then released.
             let _ = POOL.try_with(|pool| pool.borrow_mut().push(raw));
         }
+    }
+}
+
+/// The probability of sampling Open PGL's guide instead of the BSDF: ½, Cycles' default
+/// surface guiding probability (the peer learns none).
+pub const PEER_GUIDE_PROBABILITY: f32 = 0.5;
+
+impl Backend for Guide {
+    type Vertex<'a> = Distribution;
+
+    fn at(&self, position: Vec3, normal: Vec3, lookup: f32) -> Option<Distribution> {
+        self.distribution(position, normal, lookup)
+    }
+
+    fn draws_lookup(&self) -> bool {
+        true
+    }
+
+    fn record(&self, v: &Recorded) {
+        Guide::record(
+            self,
+            &[Record {
+                position: v.position,
+                direction: v.direction,
+                radiance: v.incident,
+                pdf: v.pdf.mixture,
+                distance: v.distance,
+            }],
+        );
+    }
+
+    fn refine(&mut self) {
+        self.update();
+    }
+}
+
+impl VertexGuide for Distribution {
+    fn sample(&self, u: Vec2) -> (Vec3, Option<f32>) {
+        (Distribution::sample(self, u), None)
+    }
+
+    fn pdf(&self, direction: Vec3) -> f32 {
+        Distribution::pdf(self, direction)
+    }
+
+    fn guide_probability(&self) -> f32 {
+        PEER_GUIDE_PROBABILITY
     }
 }
 

@@ -38,7 +38,7 @@ impl Camera {
 /// A scene ready to render.
 #[derive(Clone, Debug)]
 pub struct Scene {
-    /// The scene's name (one of [`Scene::NAMES`], or a test scene's).
+    /// The scene's name (one of [`scenes::BUILT_IN`](crate::scenes::BUILT_IN), or a test scene's).
     pub name: String,
     /// The shapes.
     pub shapes: Vec<Shape>,
@@ -203,29 +203,6 @@ impl SceneBuilder {
 }
 
 impl Scene {
-    /// The built-in scene called `name`.
-    pub fn by_name(name: &str) -> Option<Scene> {
-        match name {
-            "door" => Some(crate::scenes::door()),
-            "glossy-box" => Some(crate::scenes::glossy_box()),
-            "uplight" => Some(crate::scenes::uplight()),
-            "covered" => Some(crate::scenes::covered()),
-            "caustic" => Some(crate::scenes::caustic()),
-            "furnace" => Some(crate::scenes::furnace(0.5, 1.0)),
-            _ => None,
-        }
-    }
-
-    /// Names accepted by [`Scene::by_name`].
-    pub const NAMES: [&'static str; 6] = [
-        "door",
-        "glossy-box",
-        "uplight",
-        "covered",
-        "caustic",
-        "furnace",
-    ];
-
     /// The closest hit along `ray`.
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         let (t, shape) = self.bvh.intersect(&self.shapes, ray)?;

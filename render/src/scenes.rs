@@ -4,6 +4,62 @@ use crate::material::Material;
 use crate::scene::{Camera, Scene, SceneBuilder};
 use glam::Vec3;
 
+/// A built-in scene: its name on the command line, how it is made, and whether it has a
+/// stored reference at the default resolution, so that `--scene all` compares it.
+#[derive(Clone, Copy, Debug)]
+pub struct BuiltIn {
+    /// The scene's name.
+    pub name: &'static str,
+    /// Makes the scene.
+    pub make: fn() -> Scene,
+    /// Whether `--scene all` renders it.
+    pub compared: bool,
+}
+
+/// Every built-in scene, in the order reports list them.
+pub const BUILT_IN: [BuiltIn; 6] = [
+    BuiltIn {
+        name: "door",
+        make: door,
+        compared: true,
+    },
+    BuiltIn {
+        name: "glossy-box",
+        make: glossy_box,
+        compared: true,
+    },
+    BuiltIn {
+        name: "uplight",
+        make: uplight,
+        compared: true,
+    },
+    BuiltIn {
+        name: "covered",
+        make: covered,
+        compared: true,
+    },
+    BuiltIn {
+        name: "caustic",
+        make: caustic,
+        compared: true,
+    },
+    BuiltIn {
+        name: "furnace",
+        make: || furnace(0.5, 1.0),
+        compared: false,
+    },
+];
+
+/// The built-in scene called `name`.
+pub fn by_name(name: &str) -> Option<Scene> {
+    BUILT_IN.iter().find(|s| s.name == name).map(|s| (s.make)())
+}
+
+/// The names of the scenes `--scene all` renders.
+pub fn compared() -> impl Iterator<Item = &'static str> {
+    BUILT_IN.iter().filter(|s| s.compared).map(|s| s.name)
+}
+
 /// The off-white walls of the `door` and `uplight` rooms.
 fn room_wall() -> Material {
     Material::diffuse(Vec3::new(0.72, 0.70, 0.66))

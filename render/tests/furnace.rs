@@ -8,12 +8,12 @@
 //! paths through it are weighed right.
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule, Splitting, SplittingMode};
+use sdguide_render::backend::{Backend, Unguided};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::{Continuations, Guide, Guiding, Roulette};
+use sdguide_render::integrator::{Continuations, Guiding, Roulette};
+use sdguide_render::method::field_bounds;
 use sdguide_render::passes::{PassImage, splitting};
-use sdguide_render::render::{
-    TrainingPass, field_bounds, render_pass, render_pass_image, training_pass_with,
-};
+use sdguide_render::render::{TrainingPass, render_pass, render_pass_image, training_pass_with};
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
 
@@ -35,12 +35,12 @@ fn mean_and_error(image: &Image) -> (f64, f64) {
     (mean, (var / n).sqrt())
 }
 
-fn render_furnace(field: Option<Guide<'_>>) -> Image {
+fn render_furnace<B: Backend>(field: Option<&B>) -> Image {
     render_in(&furnace(ALBEDO, EMISSION), field, 7)
 }
 
 /// The mean of `SPP` samples per pixel of `scene`, guided by `field` (not recording).
-fn render_in(scene: &Scene, field: Option<Guide<'_>>, seed: u64) -> Image {
+fn render_in<B: Backend>(scene: &Scene, field: Option<&B>, seed: u64) -> Image {
     let mut sum = Image::new(SIZE.0, SIZE.1);
     let guiding = field.map(|field| Guiding {
         field,
@@ -122,7 +122,7 @@ fn assert_converges(image: &Image, what: &str) {
 
 #[test]
 fn unguided_furnace_converges_to_the_analytic_radiance() {
-    assert_converges(&render_furnace(None), "unguided");
+    assert_converges(&render_furnace(None::<&Unguided>), "unguided");
 }
 
 /// A 0.4 m furnace: every light sample lies within a metre of its shading point, where shadow
@@ -132,7 +132,7 @@ fn unguided_furnace_converges_to_the_analytic_radiance() {
 fn a_small_furnace_converges_too() {
     let scene = furnace_sized(ALBEDO, EMISSION, 0.2);
     let mut sum = Image::new(SIZE.0, SIZE.1);
-    render_pass(&scene, None, &mut sum, SPP, 7, 0);
+    render_pass(&scene, None::<Guiding<Unguided>>, &mut sum, SPP, 7, 0);
     sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
     assert_converges(&sum, "small furnace");
 }
@@ -152,10 +152,7 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
         let dist = field.distribution(glam::Vec3::new(0.5, -0.9, 0.2));
         assert!(dist.leaves().len() > 1);
         assert!(dist.guide_probability() > 0.0);
-        assert_converges(
-            &render_furnace(Some(Guide::Sdguide(&field))),
-            &format!("{rule:?}"),
-        );
+        assert_converges(&render_furnace(Some(&field)), &format!("{rule:?}"));
     }
 }
 
@@ -178,7 +175,7 @@ fn in_the_furnace_the_guide_does_not_pay_and_turns_off() {
         stats.guides_off,
         stats.spatial_leaves
     );
-    assert_converges(&render_furnace(Some(Guide::Sdguide(&field))), "guides off");
+    assert_converges(&render_furnace(Some(&field)), "guides off");
 }
 
 /// Without roulette every path goes on to the longest depth: trained and rendered that way, the
@@ -190,7 +187,7 @@ fn furnace_without_roulette_converges_guided_and_not() {
     let (field, _) = trained_with(&scene, LeafRule::default(), Roulette::Off, None);
     assert_eq!(field.stats().rejected.total(), 0);
     let guided = |record| Guiding {
-        field: Guide::Sdguide(&field),
+        field: &field,
         record,
         guide_probability: None,
     };
@@ -221,12 +218,12 @@ fn furnace_without_roulette_converges_guided_and_not() {
 fn furnace_without_next_event_estimation_converges_guided_and_not() {
     let mut scene = furnace(ALBEDO, EMISSION);
     scene.next_event = false;
-    assert_converges(&render_in(&scene, None, 9), "unguided, no NEE");
+    assert_converges(&render_in(&scene, None::<&Unguided>, 9), "unguided, no NEE");
     for rule in [LeafRule::L1, LeafRule::L2] {
         let field = trained_in(&scene, rule);
         assert!(field.stats().spatial_leaves > 1);
         assert_converges(
-            &render_in(&scene, Some(Guide::Sdguide(&field)), 9),
+            &render_in(&scene, Some(&field), 9),
             &format!("{rule:?}, no NEE"),
         );
     }
@@ -242,13 +239,16 @@ fn a_glass_sphere_leaves_the_furnace_radiance_as_it_was() {
         let mut scene = glass_furnace(ALBEDO, EMISSION);
         scene.next_event = next_event;
         let what = format!("glass, NEE {next_event}");
-        assert_converges(&render_in(&scene, None, 11), &format!("{what}, unguided"));
+        assert_converges(
+            &render_in(&scene, None::<&Unguided>, 11),
+            &format!("{what}, unguided"),
+        );
         let field = trained_in(&scene, LeafRule::L2);
         let stats = field.stats();
         assert_eq!(stats.rejected.total(), 0, "{stats:?}");
         assert!(stats.spatial_leaves > 1, "{stats:?}");
         assert_converges(
-            &render_in(&scene, Some(Guide::Sdguide(&field)), 11),
+            &render_in(&scene, Some(&field), 11),
             &format!("{what}, guided"),
         );
     }
@@ -293,7 +293,7 @@ fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
         let at = glam::Vec3::new(0.5, -0.9, 0.2);
         assert!(guide.distribution(at, glam::Vec3::Y, 0.5).is_some());
         assert_converges(
-            &render_furnace(Some(Guide::OpenPgl(&guide))),
+            &render_furnace(Some(&guide)),
             &format!("Open PGL, cosine product {cosine_product}"),
         );
     }
@@ -341,7 +341,7 @@ fn furnace_with_roulette_and_splitting_converges() {
             record: false,
         };
         let guiding = Guiding {
-            field: Guide::Sdguide(&field),
+            field: &field,
             record: false,
             guide_probability,
         };

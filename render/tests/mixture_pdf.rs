@@ -8,9 +8,9 @@ mod common;
 use common::trained_door;
 use glam::Vec3;
 use sdguide_render::geometry::Frame;
-use sdguide_render::integrator::VertexSampler;
 use sdguide_render::material::Material;
 use sdguide_render::rng::Rng;
+use sdguide_render::sampler::VertexSampler;
 use std::f64::consts::PI;
 
 const Z_BINS: usize = 10;
@@ -103,9 +103,9 @@ fn guided_mixture_pdf_matches_its_draws() {
 #[cfg(feature = "openpgl")]
 #[test]
 fn open_pgl_mixture_pdf_matches_its_draws() {
-    use sdguide_render::integrator::Guide;
+    use sdguide_render::method::field_bounds;
     use sdguide_render::openpgl;
-    use sdguide_render::render::{field_bounds, training_pass};
+    use sdguide_render::render::training_pass;
     use sdguide_render::scenes::door;
     let scene = door();
     let floor = Material::glossy(Vec3::splat(0.3), Vec3::splat(0.35), 0.12);
@@ -120,7 +120,7 @@ fn open_pgl_mixture_pdf_matches_its_draws() {
             (Vec3::new(0.0, 1.2, 2.5), Vec3::X, &wall),
         ] {
             let wo = (Vec3::new(0.4, 1.5, 0.4) - position).normalize();
-            let guide = Some(Guide::OpenPgl(&guide));
+            let guide = Some(&guide);
             let sampler = VertexSampler::with_guide(position, normal, wo, material, guide, 0.37);
             check_sampler(&sampler, normal, 4_000_000, 9);
         }

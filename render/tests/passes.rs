@@ -5,8 +5,8 @@
 
 use glam::Vec3;
 use sdguide::GuidingConfig;
+use sdguide_render::method::{Budget, Method, Outcome, Rrs, Training, render};
 use sdguide_render::passes::{PassImage, combine};
-use sdguide_render::render::{Budget, Method, Outcome, Rrs, Training, render};
 use sdguide_render::scenes::furnace;
 
 /// A one-pixel pass whose samples are the grey values `values`.

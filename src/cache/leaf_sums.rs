@@ -5,12 +5,12 @@
 
 use super::*;
 
-pub(super) fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_selection(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + SELECTION_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
-        let s = t.selection.sums();
-        out.f32(t.selection.learned);
+        let s = t.selection().sums();
+        out.f32(t.selection().learned);
         out.u32(0);
         out.f64(s.gradient);
         out.f64(s.curvature);
@@ -20,10 +20,7 @@ pub(super) fn encode_selection(trees: &[DirectionalTree]) -> Vec<u8> {
 }
 
 /// Reads the optional selection section into `trees` (already decoded).
-pub(super) fn decode_selection(
-    bytes: &[u8],
-    trees: &mut [DirectionalTree],
-) -> Result<(), CacheError> {
+pub(super) fn decode_selection(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
     let mut r = In {
         bytes,
         section: "selection",
@@ -51,17 +48,17 @@ pub(super) fn decode_selection(
                 format!("tree {i}: probability {probability}, sums {sums:?}"),
             ));
         }
-        t.selection = GuideSelection::from_parts(probability, false, sums);
+        t.set_selection(GuideSelection::from_parts(probability, false, sums));
     }
     Ok(())
 }
 
-pub(super) fn encode_guide_cost(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_guide_cost(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + GUIDE_COST_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
-        let s = t.selection.sums();
-        out.u32(u32::from(t.selection.off()));
+        let s = t.selection().sums();
+        out.u32(u32::from(t.selection().off()));
         out.u32(0);
         out.f64(s.guided);
         out.f64(s.bsdf);
@@ -73,10 +70,7 @@ pub(super) fn encode_guide_cost(trees: &[DirectionalTree]) -> Vec<u8> {
 
 /// Reads the optional guide-cost section into `trees` (already decoded, their selections
 /// too).
-pub(super) fn decode_guide_cost(
-    bytes: &[u8],
-    trees: &mut [DirectionalTree],
-) -> Result<(), CacheError> {
+pub(super) fn decode_guide_cost(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
     let mut r = In {
         bytes,
         section: "guide cost",
@@ -96,7 +90,7 @@ pub(super) fn decode_guide_cost(
             bsdf: r.f64()?,
             first: r.f64()?,
             uncovered: r.u64()?,
-            ..t.selection.sums()
+            ..t.selection().sums()
         };
         if flags > 1 || !sums.valid() {
             return Err(corrupt(
@@ -104,16 +98,20 @@ pub(super) fn decode_guide_cost(
                 format!("tree {i}: flags {flags}, sums {sums:?}"),
             ));
         }
-        t.selection = GuideSelection::from_parts(t.selection.learned, flags == 1, sums);
+        t.set_selection(GuideSelection::from_parts(
+            t.selection().learned,
+            flags == 1,
+            sums,
+        ));
     }
     Ok(())
 }
 
-pub(super) fn encode_quadrants(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_quadrants(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
-        let q = &t.recording.quadrants;
+        let q = &t.recording().quadrants;
         out.u32(q.len() as u32);
         for (s2, n) in q.iter().flat_map(|q| q.get()) {
             out.f64(s2);
@@ -124,10 +122,7 @@ pub(super) fn encode_quadrants(trees: &[DirectionalTree]) -> Vec<u8> {
 }
 
 /// Reads the optional quadrants section into `trees` (already decoded).
-pub(super) fn decode_quadrants(
-    bytes: &[u8],
-    trees: &mut [DirectionalTree],
-) -> Result<(), CacheError> {
+pub(super) fn decode_quadrants(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
     let section = "quadrants";
     let mut r = In { bytes, section };
     let n = r.count(4, "trees")?;
@@ -139,16 +134,16 @@ pub(super) fn decode_quadrants(
     }
     for (i, t) in trees.iter_mut().enumerate() {
         let leaves = r.count(QUADRANTS_LEN, "leaves")?;
-        if leaves != t.recording.moments.len() {
+        if leaves != t.recording().moments.len() {
             return Err(corrupt(
                 section,
                 format!(
                     "tree {i}: {leaves} leaves of quadrant sums for {} leaves",
-                    t.recording.moments.len()
+                    t.recording().moments.len()
                 ),
             ));
         }
-        for (k, slot) in t.recording.quadrants.iter_mut().enumerate() {
+        for (k, slot) in t.recording_mut().quadrants.iter_mut().enumerate() {
             let mut q = [(0.0, 0); 4];
             for x in &mut q {
                 *x = (r.f64()?, r.u64()?);
@@ -165,11 +160,11 @@ pub(super) fn decode_quadrants(
     Ok(())
 }
 
-pub(super) fn encode_continuations(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_continuations(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + CONTINUATIONS_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
-        for e in [t.continuations.estimate, t.continuations.recorded()] {
+        for e in [t.continuations().estimate, t.continuations().recorded()] {
             out.f64(e.sum);
             out.f64(e.sum_sq);
             out.f64(e.cost);
@@ -180,10 +175,7 @@ pub(super) fn encode_continuations(trees: &[DirectionalTree]) -> Vec<u8> {
 }
 
 /// Reads the optional continuations section into `trees` (already decoded).
-pub(super) fn decode_continuations(
-    bytes: &[u8],
-    trees: &mut [DirectionalTree],
-) -> Result<(), CacheError> {
+pub(super) fn decode_continuations(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
     let section = "continuations";
     let mut r = In { bytes, section };
     let n = r.count(CONTINUATIONS_LEN, "continuation estimates")?;
@@ -209,7 +201,7 @@ pub(super) fn decode_continuations(
                 format!("tree {i}: estimate {estimate:?}, recorded {recorded:?}"),
             ));
         }
-        t.continuations = ContinuationStats::from_parts(estimate, recorded);
+        t.set_continuations(ContinuationStats::from_parts(estimate, recorded));
     }
     Ok(())
 }
@@ -219,12 +211,12 @@ const SLOT_HELD: u32 = 1;
 /// Flag of a `SURFACES` slot: its normal has a stored product.
 const SLOT_PRODUCT: u32 = 2;
 
-pub(super) fn encode_surfaces(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_surfaces(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + SURFACES_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
-        let tallied = t.surfaces.tallied();
-        out.u32(t.surfaces.others());
+        let tallied = t.surfaces().tallied();
+        out.u32(t.surfaces().others());
         out.u32(0);
         for k in 0..SLOTS {
             match tallied.get(k) {
@@ -246,10 +238,7 @@ pub(super) fn encode_surfaces(trees: &[DirectionalTree]) -> Vec<u8> {
 
 /// Reads the optional surfaces section into `trees` (already decoded, sampling trees
 /// included): the tallies, and the products they ask for, rebuilt from the loaded guides.
-pub(super) fn decode_surfaces(
-    bytes: &[u8],
-    trees: &mut [DirectionalTree],
-) -> Result<(), CacheError> {
+pub(super) fn decode_surfaces(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
     let section = "surfaces";
     let mut r = In { bytes, section };
     let n = r.count(SURFACES_LEN, "surface tallies")?;
@@ -288,7 +277,7 @@ pub(super) fn decode_surfaces(
                 product: flags & SLOT_PRODUCT != 0,
             });
         }
-        t.surfaces.set(slots, others, &t.sampling);
+        t.set_tally(slots, others);
     }
     Ok(())
 }

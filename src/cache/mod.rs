@@ -12,20 +12,23 @@
 //! must have exactly one parent, depths and node counts stay within the configuration, and every
 //! number must be finite and in range. A malformed file is a [`CacheError`], never a panic.
 
+use crate::bounds::Aabb;
+use crate::config::GuidingConfig;
+use crate::field::GuidingField;
+use crate::filter::{DirectionalFilter, SpatialFilter};
 use crate::guide_probability::{
     GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
 };
+use crate::moments::Moments;
 use crate::moments::{AtomicMoments, AtomicQuadrants};
-use crate::quadtree::{
-    self, DirectionalTree, RecordingTree, SLOTS, SamplingNode, SamplingTree, Surfaces, Tallied,
-};
+use crate::quadtree::{self, RecordingTree, SLOTS, SamplingNode, SamplingTree, Tallied};
+use crate::refinement::Refinement;
+use crate::region::Region;
+use crate::rule::LeafRule;
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
 use crate::stats::RejectCounters;
-use crate::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Moments, Refinement,
-    Rejections, SpatialFilter,
-};
+use crate::stats::Rejections;
 use glam::Vec3;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -59,7 +62,7 @@ pub const FORMAT_MAJOR: u16 = 2;
 /// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
 /// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]) — an older
 /// reader refuses files that use them — and 2.3 the optional `CONTINUATIONS` section (the
-/// moments [`splitting`](crate::splitting) learns from), which an older reader skips; 2.4
+/// moments [`Splitting`](crate::Splitting) learns from), which an older reader skips; 2.4
 /// appends [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) to `META`,
 /// which an older reader ignores (it learns up to its own bound); 2.5 adds the optional
 /// `SURFACES` section (each spatial cell's tally of recorded normals), which an older reader
@@ -234,13 +237,17 @@ impl GuidingField {
             (
                 SECTION_DIRECTIONAL,
                 FLAG_REQUIRED,
-                encode_directional(&self.trees),
+                encode_directional(&self.regions),
             ),
-            (SECTION_SELECTION, 0, encode_selection(&self.trees)),
-            (SECTION_QUADRANTS, 0, encode_quadrants(&self.trees)),
-            (SECTION_CONTINUATIONS, 0, encode_continuations(&self.trees)),
-            (SECTION_SURFACES, 0, encode_surfaces(&self.trees)),
-            (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.trees)),
+            (SECTION_SELECTION, 0, encode_selection(&self.regions)),
+            (SECTION_QUADRANTS, 0, encode_quadrants(&self.regions)),
+            (
+                SECTION_CONTINUATIONS,
+                0,
+                encode_continuations(&self.regions),
+            ),
+            (SECTION_SURFACES, 0, encode_surfaces(&self.regions)),
+            (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.regions)),
         ];
         write_envelope(&sections)
     }
@@ -269,21 +276,21 @@ impl GuidingField {
         let sections = read_envelope(bytes)?;
         let mut field = decode_meta(sections.meta)?;
         field.spatial = decode_spatial(sections.spatial, &field)?;
-        field.trees = decode_directional(sections.directional, &field)?;
+        field.regions = decode_directional(sections.directional, &field)?;
         if let Some(bytes) = sections.selection {
-            decode_selection(bytes, &mut field.trees)?;
+            decode_selection(bytes, &mut field.regions)?;
         }
         if let Some(bytes) = sections.quadrants {
-            decode_quadrants(bytes, &mut field.trees)?;
+            decode_quadrants(bytes, &mut field.regions)?;
         }
         if let Some(bytes) = sections.continuations {
-            decode_continuations(bytes, &mut field.trees)?;
+            decode_continuations(bytes, &mut field.regions)?;
         }
         if let Some(bytes) = sections.surfaces {
-            decode_surfaces(bytes, &mut field.trees)?;
+            decode_surfaces(bytes, &mut field.regions)?;
         }
         if let Some(bytes) = sections.guide_cost {
-            decode_guide_cost(bytes, &mut field.trees)?;
+            decode_guide_cost(bytes, &mut field.regions)?;
         }
         field.prepare_recording();
         Ok(field)

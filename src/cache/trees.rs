@@ -49,11 +49,11 @@ pub(super) fn decode_spatial(
     Ok(SpatialTree::from_nodes(field.spatial.cube(), nodes))
 }
 
-pub(super) fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
+pub(super) fn encode_directional(trees: &[Region]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
-        let s = t.sampling.nodes();
+        let s = t.sampling().nodes();
         out.u32(s.len() as u32);
         for n in s {
             for p in n.px.iter().chain(n.py.iter().flatten()) {
@@ -63,7 +63,7 @@ pub(super) fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
                 out.u16(c);
             }
         }
-        let r = &t.recording;
+        let r = t.recording();
         out.u32(r.nodes.len() as u32);
         for slots in r.nodes.iter() {
             for &s in slots {
@@ -86,7 +86,7 @@ pub(super) fn encode_directional(trees: &[DirectionalTree]) -> Vec<u8> {
 pub(super) fn decode_directional(
     bytes: &[u8],
     field: &GuidingField,
-) -> Result<Vec<DirectionalTree>, CacheError> {
+) -> Result<Vec<Region>, CacheError> {
     let mut r = In {
         bytes,
         section: "directional",
@@ -112,10 +112,7 @@ pub(super) fn decode_directional(
         .collect()
 }
 
-pub(super) fn decode_tree(
-    r: &mut In<'_>,
-    c: &GuidingConfig,
-) -> Result<DirectionalTree, CacheError> {
+pub(super) fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<Region, CacheError> {
     let section = "directional";
     // Interior node depth is at most max_depth − 1: their children, the leaves, reach max_depth.
     let max_node_depth = c.max_directional_depth - 1;
@@ -192,16 +189,13 @@ pub(super) fn decode_tree(
         }
         moments.push(AtomicMoments::from_moments(mm));
     }
-    Ok(DirectionalTree {
-        sampling: SamplingTree::new(sampling.into_boxed_slice()),
-        recording: RecordingTree {
+    Ok(Region::new(
+        SamplingTree::new(sampling.into_boxed_slice()),
+        RecordingTree {
             nodes: nodes.into_boxed_slice(),
             quadrants: (0..moments.len()).map(|_| Default::default()).collect(),
             moments: moments.into_boxed_slice(),
             pending: Box::default(),
         },
-        selection: GuideSelection::default(),
-        continuations: ContinuationStats::default(),
-        surfaces: Surfaces::default(),
-    })
+    ))
 }

@@ -1,6 +1,7 @@
 //! The directional quadtree over the unit square (the sphere, through [`crate::sphere`]).
 //!
-//! Each spatial leaf owns one [`DirectionalTree`], double-buffered as the design asks:
+//! Each spatial leaf (a [`Region`](crate::region::Region)) owns one directional quadtree,
+//! double-buffered as the design asks:
 //!
 //! - a [`SamplingTree`] (`sampling`): read-only during an iteration, it holds for each node the
 //!   probability of each of its four quadrants, its first four levels flattened into a grid
@@ -12,7 +13,8 @@
 //!   sums are never kept. The directional box filter's shares, found from the sample's own leaf
 //!   at `record` or from each leaf quadrant's pending sums at `refine`, are `splat`'s.
 //!
-//! [`DirectionalTree::refine`] (`refine`) ends an iteration: it turns the leaf moments into
+//! [`refine`] ends an iteration: a function from the recording tree to the next sampling and
+//! recording trees. It turns the leaf moments into
 //! masses with the active [`LeafRule`](crate::LeafRule), mixes in the uniform floor, sums
 //! interior masses bottom-up into the next sampling tree, and derives the next recording
 //! topology by the active [`Refinement`](crate::Refinement): split the cells whose share of
@@ -33,13 +35,11 @@ mod surfaces;
 
 pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use recording::RecordingTree;
-pub(crate) use refine::{RefineOutcome, RefineParams};
+pub(crate) use refine::{RefineParams, refine};
 pub(crate) use sampling::{GRID_BYTES, SamplingNode, SamplingTree};
 pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, tallies};
 
-use crate::guide_probability::GuideSelection;
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
-use crate::splitting::ContinuationStats;
 use glam::Vec2;
 #[cfg(test)]
 use recording::FREE;
@@ -179,42 +179,6 @@ impl DirectionalCell {
     };
 }
 
-/// A spatial leaf's directional knowledge: what queries sample, and what recording fills.
-///
-/// Laid out for the query: the sampling tree's two pointers and the first 32 bytes of
-/// `surfaces` (which normals have stored products, and where they are) share the first cache
-/// line.
-#[derive(Clone, Debug)]
-#[repr(C, align(64))]
-pub(crate) struct DirectionalTree {
-    pub(crate) sampling: SamplingTree,
-    pub(crate) surfaces: Surfaces,
-    pub(crate) recording: RecordingTree,
-    /// The spatial leaf's learned guide-vs-BSDF selection probability.
-    pub(crate) selection: GuideSelection,
-    /// The spatial leaf's continuation moments, for roulette and splitting.
-    pub(crate) continuations: ContinuationStats,
-}
-
-impl Default for DirectionalTree {
-    fn default() -> Self {
-        Self {
-            sampling: SamplingTree::uniform(),
-            surfaces: Surfaces::default(),
-            recording: RecordingTree::root(),
-            selection: GuideSelection::default(),
-            continuations: ContinuationStats::default(),
-        }
-    }
-}
-
-impl DirectionalTree {
-    /// Bytes held by both buffers and the stored surface products.
-    pub(crate) fn bytes(&self) -> usize {
-        self.sampling.bytes() + self.recording.bytes() + self.surfaces.bytes()
-    }
-}
-
 /// Random trees for the tests of the submodules.
 #[cfg(test)]
 mod testing {
@@ -329,17 +293,5 @@ mod tests {
         assert_eq!(bytes_per_node(false), 336);
         assert_eq!(leaf_bytes(true), 24 + 64 + 64);
         assert_eq!(bytes_per_node(true), 528);
-    }
-
-    #[test]
-    fn what_a_query_reads_shares_one_cache_line() {
-        // The sampling tree's pointers (its nodes, and its grid with the cuts), the product
-        // keys and the products' pointer.
-        assert_eq!(std::mem::offset_of!(DirectionalTree, surfaces), 24);
-        assert_eq!(std::mem::align_of::<DirectionalTree>(), 64);
-        let s = Surfaces::default();
-        let base = std::ptr::from_ref(&s) as usize;
-        let end = std::ptr::from_ref(&s.products) as usize + size_of::<Box<[SurfaceTree]>>();
-        assert_eq!(end - base, 32);
     }
 }

@@ -3,8 +3,9 @@
 //! the sample's leaf; the box filter's shares are in `splat`.
 
 use super::{DirectionalCell, LEAF_BIT, fixed, quadrant_bits};
+use crate::filter::DirectionalFilter;
+use crate::moments::Moments;
 use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
-use crate::{DirectionalFilter, Moments};
 use glam::Vec2;
 
 /// A child slot of a recording node under construction that will become a leaf.
@@ -29,7 +30,7 @@ pub(crate) struct RecordingTree {
 
 impl RecordingTree {
     /// One root with four empty leaves.
-    pub(super) fn root() -> Self {
+    pub(crate) fn root() -> Self {
         Self::from_nodes(vec![[FREE; 4]], false)
     }
 
@@ -191,6 +192,24 @@ impl RecordingTree {
         self.moments
             .iter()
             .fold(0, |n, m| n.saturating_add(m.get().count))
+    }
+
+    /// Zeroes every leaf's moments (their quadrant sums are not kept past an iteration).
+    pub(crate) fn clear_moments(&mut self) {
+        for m in self.moments.iter_mut() {
+            *m = AtomicMoments::default();
+        }
+    }
+
+    /// Adds the moments and quadrant sums of `other`, a tree of the same topology (a merge;
+    /// pending sums spread first by the caller).
+    pub(crate) fn add(&mut self, other: &RecordingTree) {
+        for (x, y) in self.moments.iter_mut().zip(other.moments.iter()) {
+            x.add_moments(y.get());
+        }
+        for (x, y) in self.quadrants.iter_mut().zip(other.quadrants.iter()) {
+            x.add_quadrants(y.get());
+        }
     }
 
     pub(crate) fn bytes(&self) -> usize {

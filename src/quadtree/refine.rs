@@ -3,14 +3,13 @@
 //! from split keys (flux share, or variance gain from the quadrant sums).
 
 use super::{
-    DirectionalTree, LEAF_BIT, NO_CHILD, RecordingTree, SamplingNode, SamplingTree, cell_area,
-    recording::FREE,
+    LEAF_BIT, NO_CHILD, RecordingTree, SamplingNode, SamplingTree, cell_area, recording::FREE,
 };
-use crate::moments::AtomicMoments;
+use crate::refinement::Refinement;
 use crate::refinement::{
     MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, SPLIT_PRIOR_SAMPLES, split_gain,
 };
-use crate::{LeafRule, Refinement};
+use crate::rule::LeafRule;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
@@ -25,21 +24,8 @@ pub(crate) struct RefineParams {
     pub max_depth: u32,
     pub max_nodes: u32,
     pub prior_samples: f64,
-    /// The guide probability's upper bound.
-    pub max_guide_probability: f32,
-    /// What sampling the guide costs, relative; `None`: the guide never turns off.
-    pub guide_cost: Option<f32>,
     /// Whether recording defers the directional box filter to refine (give leaves pending sums).
     pub deferred: bool,
-}
-
-/// What one directional refine did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub(crate) struct RefineOutcome {
-    /// Samples the tree had recorded in the iteration that ended.
-    pub samples: u64,
-    /// Cells that qualified for a split but were refused by `max_nodes`.
-    pub refused: u64,
 }
 
 /// Shrunk `(S1, S2)` estimates of a recording tree's cells.
@@ -163,172 +149,170 @@ struct Grown {
     gave_up: bool,
 }
 
-impl DirectionalTree {
-    /// Ends an iteration: builds the next sampling tree from the recorded moments and the next
-    /// (empty) recording topology. A tree that counted no sample keeps what it had learned.
-    pub(crate) fn refine(&mut self, params: &RefineParams) -> RefineOutcome {
-        // Where the renderer recorded continuations (efficiency-aware roulette or splitting),
-        // the guide stays on: the factors follow continuation estimates the guide shapes, so
-        // what the guide is worth is not in its vertices' variance alone (see
-        // `guide_probability`).
-        let splitting = self.continuations.recorded().count > 0;
-        let cost = params.guide_cost.filter(|_| !splitting);
-        self.selection.step(params.max_guide_probability, cost);
-        self.continuations.step();
-        self.recording.flush_pending_mut();
-        let samples = self.recording.count();
-        if samples == 0 {
-            // Nothing landed here; shares a box filter spread in from neighbouring spatial
-            // leaves are not enough to learn from (shrinkage weighs by counted samples), so
-            // they are dropped with the iteration, and the distribution stays.
-            for m in self.recording.moments.iter_mut() {
-                *m = AtomicMoments::default();
-            }
-            return RefineOutcome::default();
-        }
-        let rec = &self.recording;
-        let depth = rec.depths();
+/// The trees an iteration's recording tree refines into.
+pub(crate) struct Refined {
+    /// The next distribution.
+    pub sampling: SamplingTree,
+    /// The next (empty) recording topology.
+    pub recording: RecordingTree,
+    /// Cells that qualified for a split but were refused by `max_nodes`.
+    pub refused: u64,
+}
 
-        // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
-        //    shrunk toward their parents' (see `shrunk_moments`).
-        let shrunk = rec.shrunk_moments(params.prior_samples);
-        let leaf_moments = &shrunk.leaves;
-        let mut leaf_mass = vec![0.0f64; rec.moments.len()];
-        for (i, slots) in rec.nodes.iter().enumerate() {
-            for &slot in slots {
-                if slot & LEAF_BIT != 0 {
-                    let k = (slot & !LEAF_BIT) as usize;
-                    let (s1, s2) = leaf_moments[k];
-                    leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), s1, s2);
-                }
+/// Ends an iteration of one directional tree: builds the next sampling tree from the moments
+/// `rec` recorded (pending sums already spread; at least one sample counted) and the next
+/// (empty) recording topology.
+pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
+    let depth = rec.depths();
+
+    // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
+    //    shrunk toward their parents' (see `shrunk_moments`).
+    let shrunk = rec.shrunk_moments(params.prior_samples);
+    let leaf_moments = &shrunk.leaves;
+    let mut leaf_mass = vec![0.0f64; rec.moments.len()];
+    for (i, slots) in rec.nodes.iter().enumerate() {
+        for &slot in slots {
+            if slot & LEAF_BIT != 0 {
+                let k = (slot & !LEAF_BIT) as usize;
+                let (s1, s2) = leaf_moments[k];
+                leaf_mass[k] = params.rule.mass(cell_area(depth[i] + 1), s1, s2);
             }
         }
-        let total: f64 = leaf_mass.iter().sum();
-        let lit = total > 0.0 && total.is_finite();
+    }
+    let total: f64 = leaf_mass.iter().sum();
+    let lit = total > 0.0 && total.is_finite();
 
-        // 2. Per node and quadrant: the learned share α (drives refinement) and the sampled mass
-        //    (1−ε)·α + ε·|C| (drives sampling), summed bottom-up in one reverse sweep.
-        let eps = if lit { params.uniform_fraction } else { 1.0 };
-        let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
-        let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
-        for i in (0..rec.nodes.len()).rev() {
-            let area = cell_area(depth[i] + 1);
-            for (q, &slot) in rec.nodes[i].iter().enumerate() {
-                let (s, m) = if slot & LEAF_BIT != 0 {
-                    let a = if lit {
-                        leaf_mass[(slot & !LEAF_BIT) as usize] / total
-                    } else {
-                        0.0
-                    };
-                    (a, (1.0 - eps) * a + eps * area)
+    // 2. Per node and quadrant: the learned share α (drives refinement) and the sampled mass
+    //    (1−ε)·α + ε·|C| (drives sampling), summed bottom-up in one reverse sweep.
+    let eps = if lit { params.uniform_fraction } else { 1.0 };
+    let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
+    let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
+    for i in (0..rec.nodes.len()).rev() {
+        let area = cell_area(depth[i] + 1);
+        for (q, &slot) in rec.nodes[i].iter().enumerate() {
+            let (s, m) = if slot & LEAF_BIT != 0 {
+                let a = if lit {
+                    leaf_mass[(slot & !LEAF_BIT) as usize] / total
                 } else {
-                    let c = slot as usize;
-                    (share[c].iter().sum(), mass[c].iter().sum())
+                    0.0
                 };
-                share[i][q] = s;
-                mass[i][q] = m;
-            }
+                (a, (1.0 - eps) * a + eps * area)
+            } else {
+                let c = slot as usize;
+                (share[c].iter().sum(), mass[c].iter().sum())
+            };
+            share[i][q] = s;
+            mass[i][q] = m;
         }
-        let sampling = SamplingTree::new(
-            rec.nodes
-                .iter()
-                .zip(&mass)
-                .map(|(slots, &m)| {
-                    // Interior indices fit: `max_nodes` is validated to at most `MAX_NODES`.
-                    let child = slots.map(|s| {
-                        if s & LEAF_BIT != 0 {
-                            NO_CHILD
-                        } else {
-                            s as u16
-                        }
-                    });
-                    SamplingNode::from_masses(m, child)
-                })
-                .collect(),
-        );
-
-        // 3. The next topology: split by share (from the same shares) or by variance gain.
-        let keys = match params.refinement {
-            Refinement::FluxShare => SplitKeys {
-                slot: share,
-                below_leaf: None,
-                threshold: params.subdivision_threshold,
-            },
-            Refinement::VarianceGain => rec.gain_keys(&depth, params),
-        };
-        let (recording, refused) = self.refined_topology(&keys, params);
-        self.sampling = sampling;
-        self.recording = recording;
-        self.surfaces.refine(&self.sampling);
-        RefineOutcome { samples, refused }
     }
-
-    /// Grows a new topology from the root: a cell whose key exceeds the threshold becomes
-    /// interior (its children's keys come from the ended iteration where it was interior or a
-    /// leaf, and are predicted below — so one refine can add several levels); every other
-    /// cell is a leaf, which collapses whatever lay below it.
-    ///
-    /// Depth first while the node cap is not reached; when it would be, the tree is grown again
-    /// largest key first, so the cap refuses the least important splits.
-    fn refined_topology(&self, keys: &SplitKeys, params: &RefineParams) -> (RecordingTree, u64) {
-        let mut grown = self.grow(keys, params, Vec::new());
-        if grown.gave_up {
-            grown = self.grow(keys, params, BinaryHeap::new());
-        }
-        (
-            RecordingTree::from_nodes(grown.nodes, params.deferred),
-            grown.refused,
-        )
-    }
-
-    /// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
-    /// refuses (and counts) further splits; an unordered one gives up.
-    fn grow(&self, keys: &SplitKeys, params: &RefineParams, mut frontier: impl Frontier) -> Grown {
-        let old = &self.recording.nodes;
-        let mut out = Grown {
-            nodes: vec![[FREE; 4]],
-            refused: 0,
-            gave_up: false,
-        };
-        let push_children = |frontier: &mut dyn Frontier, new: u32, c: &Candidate| {
-            for (q, (key, origin)) in keys.children(old, c.origin, c.key).into_iter().enumerate() {
-                frontier.push(Candidate {
-                    key,
-                    cell_depth: c.cell_depth + 1,
-                    origin,
-                    parent: (new, q),
+    let sampling = SamplingTree::new(
+        rec.nodes
+            .iter()
+            .zip(&mass)
+            .map(|(slots, &m)| {
+                // Interior indices fit: `max_nodes` is validated to at most `MAX_NODES`.
+                let child = slots.map(|s| {
+                    if s & LEAF_BIT != 0 {
+                        NO_CHILD
+                    } else {
+                        s as u16
+                    }
                 });
-            }
-        };
-        let root = Candidate {
-            key: f64::INFINITY,
-            cell_depth: 0,
-            origin: Origin::Interior(0),
-            parent: (0, 0),
-        };
-        push_children(&mut frontier, 0, &root);
-        while let Some(c) = frontier.pop() {
-            if c.key <= keys.threshold || c.cell_depth >= params.max_depth {
-                continue;
-            }
-            if out.nodes.len() >= params.max_nodes as usize {
-                if !frontier.ordered() {
-                    out.gave_up = true;
-                    return out;
-                }
-                out.refused += 1;
-                continue;
-            }
-            let new = out.nodes.len() as u32;
-            out.nodes.push([FREE; 4]);
-            out.nodes[c.parent.0 as usize][c.parent.1] = new;
-            push_children(&mut frontier, new, &c);
-        }
-        out
+                SamplingNode::from_masses(m, child)
+            })
+            .collect(),
+    );
+
+    // 3. The next topology: split by share (from the same shares) or by variance gain.
+    let keys = match params.refinement {
+        Refinement::FluxShare => SplitKeys {
+            slot: share,
+            below_leaf: None,
+            threshold: params.subdivision_threshold,
+        },
+        Refinement::VarianceGain => rec.gain_keys(&depth, params),
+    };
+    let (recording, refused) = refined_topology(&rec.nodes, &keys, params);
+    Refined {
+        sampling,
+        recording,
+        refused,
     }
 }
 
-// What `DirectionalTree::refine` reads off the ended iteration. Each is called once per refine and
+/// Grows a new topology from the root: a cell whose key exceeds the threshold becomes
+/// interior (its children's keys come from the ended iteration where it was interior or a
+/// leaf, and are predicted below — so one refine can add several levels); every other
+/// cell is a leaf, which collapses whatever lay below it.
+///
+/// Depth first while the node cap is not reached; when it would be, the tree is grown again
+/// largest key first, so the cap refuses the least important splits.
+fn refined_topology(
+    old: &[[u32; 4]],
+    keys: &SplitKeys,
+    params: &RefineParams,
+) -> (RecordingTree, u64) {
+    let mut grown = grow(old, keys, params, Vec::new());
+    if grown.gave_up {
+        grown = grow(old, keys, params, BinaryHeap::new());
+    }
+    (
+        RecordingTree::from_nodes(grown.nodes, params.deferred),
+        grown.refused,
+    )
+}
+
+/// Grows a topology, taking cells from `frontier`. At the node cap an ordered frontier
+/// refuses (and counts) further splits; an unordered one gives up.
+fn grow(
+    old: &[[u32; 4]],
+    keys: &SplitKeys,
+    params: &RefineParams,
+    mut frontier: impl Frontier,
+) -> Grown {
+    let mut out = Grown {
+        nodes: vec![[FREE; 4]],
+        refused: 0,
+        gave_up: false,
+    };
+    let push_children = |frontier: &mut dyn Frontier, new: u32, c: &Candidate| {
+        for (q, (key, origin)) in keys.children(old, c.origin, c.key).into_iter().enumerate() {
+            frontier.push(Candidate {
+                key,
+                cell_depth: c.cell_depth + 1,
+                origin,
+                parent: (new, q),
+            });
+        }
+    };
+    let root = Candidate {
+        key: f64::INFINITY,
+        cell_depth: 0,
+        origin: Origin::Interior(0),
+        parent: (0, 0),
+    };
+    push_children(&mut frontier, 0, &root);
+    while let Some(c) = frontier.pop() {
+        if c.key <= keys.threshold || c.cell_depth >= params.max_depth {
+            continue;
+        }
+        if out.nodes.len() >= params.max_nodes as usize {
+            if !frontier.ordered() {
+                out.gave_up = true;
+                return out;
+            }
+            out.refused += 1;
+            continue;
+        }
+        let new = out.nodes.len() as u32;
+        out.nodes.push([FREE; 4]);
+        out.nodes[c.parent.0 as usize][c.parent.1] = new;
+        push_children(&mut frontier, new, &c);
+    }
+    out
+}
+
+// What `refine` reads off the ended iteration. Each is called once per refine and
 // marked `#[inline]`: left out of line, as the split into modules left them, `refine` took 1–2%
 // longer.
 impl RecordingTree {

@@ -2,7 +2,7 @@
 //! deferred spreading against the walk from the root.
 
 use super::*;
-use crate::DirectionalFilter;
+use crate::filter::DirectionalFilter;
 use crate::quadtree::testing::{random_topology, random_tree, uniform};
 use std::collections::{HashMap, HashSet};
 

@@ -1,7 +1,8 @@
 //! What several of the demo's tests train on.
 
 use sdguide::{GuidingConfig, GuidingField};
-use sdguide_render::render::{field_bounds, training_pass};
+use sdguide_render::method::field_bounds;
+use sdguide_render::render::training_pass;
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::door;
 

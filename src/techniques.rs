@@ -10,7 +10,7 @@
 //! ```
 //!
 //! and it is smallest for `α̃_i = sqrt(m_i) / Σ_j sqrt(m_j)` (eq. 31) — not for the customary
-//! `α̃_i = α_i`. [`Selection`] estimates each `m_i` online from the weights `w = α_i f_i/g_i` of
+//! `α̃_i = α_i`. [`TechniqueProbabilities`] estimates each `m_i` online from the weights `w = α_i f_i/g_i` of
 //! the samples technique `i` produced (an unbiased estimate whatever `α̃` they were drawn with)
 //! and returns those probabilities. Uses: choosing among lights, among BSDF lobes, between any
 //! partitioned techniques.
@@ -19,17 +19,64 @@
 //! zeros so far may still contribute, and a zero probability there would bias the estimate.
 
 use crate::moments::AtomicMoments;
-use crate::{ConfigError, RejectReason};
+use std::fmt;
 
 /// Samples a technique needs before its second moment is trusted; until then it is treated as
 /// the most important technique seen so far, so that it keeps being tried.
-pub const MIN_SAMPLES: u64 = 32;
+pub const MIN_TECHNIQUE_SAMPLES: u64 = 32;
+
+/// Why [`TechniqueProbabilities`] refused its arguments.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum TechniqueError {
+    /// [`TechniqueProbabilities::new`] was asked for no technique.
+    NoTechniques,
+    /// The floor is not in `(0, 1/techniques]`.
+    FloorOutOfRange {
+        /// The floor asked for.
+        floor: f64,
+        /// The number of techniques.
+        techniques: usize,
+    },
+    /// A weight was recorded for a technique index past the last one.
+    UnknownTechnique {
+        /// The index given.
+        technique: usize,
+        /// The number of techniques.
+        techniques: usize,
+    },
+    /// A recorded weight was negative or not finite.
+    BadWeight {
+        /// The weight given.
+        weight: f32,
+    },
+}
+
+impl fmt::Display for TechniqueError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NoTechniques => write!(f, "a selection needs at least one technique"),
+            Self::FloorOutOfRange { floor, techniques } => {
+                write!(f, "floor {floor} is not in (0, 1/{techniques}]")
+            }
+            Self::UnknownTechnique {
+                technique,
+                techniques,
+            } => write!(f, "technique {technique} of {techniques}"),
+            Self::BadWeight { weight } => {
+                write!(f, "weight {weight} is negative or not finite")
+            }
+        }
+    }
+}
+
+impl std::error::Error for TechniqueError {}
 
 /// Online, thread-safe estimator of variance-optimal technique selection probabilities.
 ///
 /// ```
-/// use sdguide::mixture::Selection;
-/// let selection = Selection::new(2, 0.05)?;
+/// use sdguide::TechniqueProbabilities;
+/// let selection = TechniqueProbabilities::new(2, 0.05)?;
 /// // Technique 0 produced weights of 4, technique 1 weights of 1 (α_i f_i/g_i, per sample).
 /// for _ in 0..100 {
 ///     selection.record(0, 4.0)?;
@@ -41,33 +88,26 @@ pub const MIN_SAMPLES: u64 = 32;
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 #[derive(Debug)]
-pub struct Selection {
+pub struct TechniqueProbabilities {
     techniques: Box<[AtomicMoments]>,
     floor: f64,
 }
 
-impl Selection {
+impl TechniqueProbabilities {
     /// A selection among `techniques` techniques (at least 1), each kept at probability
     /// `floor` or more; `floor` must be in `(0, 1/techniques]` (at `1/techniques` the
     /// selection is uniform).
     ///
     /// # Errors
     ///
-    /// A [`ConfigError`] when `techniques` is 0 or `floor` is out of range.
-    pub fn new(techniques: usize, floor: f64) -> Result<Self, ConfigError> {
+    /// [`TechniqueError::NoTechniques`] when `techniques` is 0,
+    /// [`TechniqueError::FloorOutOfRange`] when `floor` is out of range.
+    pub fn new(techniques: usize, floor: f64) -> Result<Self, TechniqueError> {
         if techniques == 0 {
-            return Err(ConfigError {
-                field: "techniques",
-                value: techniques.to_string(),
-                requirement: "at least 1",
-            });
+            return Err(TechniqueError::NoTechniques);
         }
         if !(floor > 0.0 && floor * techniques as f64 <= 1.0) {
-            return Err(ConfigError {
-                field: "floor",
-                value: floor.to_string(),
-                requirement: "a number in (0, 1/techniques]",
-            });
+            return Err(TechniqueError::FloorOutOfRange { floor, techniques });
         }
         Ok(Self {
             techniques: (0..techniques).map(|_| AtomicMoments::default()).collect(),
@@ -76,34 +116,36 @@ impl Selection {
     }
 
     /// Records the weight `α_i · f_i(x)/g_i(x)` of a sample `x` that technique `i` drew (without
-    /// the selection factor `1/α̃_i`). Any number of threads may record at once. A negative or
-    /// non-finite weight, or a technique index out of range, is rejected (`BadValue`) and not
-    /// recorded.
+    /// the selection factor `1/α̃_i`). Any number of threads may record at once.
     ///
     /// # Errors
     ///
-    /// A [`RejectReason`] when the weight is negative or not finite, or the technique
-    /// index is out of range; nothing is recorded then.
-    pub fn record(&self, technique: usize, weight: f32) -> Result<(), RejectReason> {
+    /// [`TechniqueError::BadWeight`] when the weight is negative or not finite,
+    /// [`TechniqueError::UnknownTechnique`] when the index is out of range; nothing is
+    /// recorded then.
+    pub fn record(&self, technique: usize, weight: f32) -> Result<(), TechniqueError> {
         if !(weight >= 0.0 && weight.is_finite()) {
-            return Err(RejectReason::BadValue);
+            return Err(TechniqueError::BadWeight { weight });
         }
         let slot = self
             .techniques
             .get(technique)
-            .ok_or(RejectReason::BadValue)?;
+            .ok_or(TechniqueError::UnknownTechnique {
+                technique,
+                techniques: self.techniques.len(),
+            })?;
         let w = f64::from(weight);
         slot.add((w, w * w));
         Ok(())
     }
 
-    /// The estimated `m_i` of each technique (`None` before it has [`MIN_SAMPLES`] samples).
+    /// The estimated `m_i` of each technique (`None` before it has [`MIN_TECHNIQUE_SAMPLES`] samples).
     pub fn second_moments(&self) -> Vec<Option<f64>> {
         self.techniques
             .iter()
             .map(|t| {
                 let m = t.get();
-                (m.count >= MIN_SAMPLES).then(|| m.sum_sq / m.count as f64)
+                (m.count >= MIN_TECHNIQUE_SAMPLES).then(|| m.sum_sq / m.count as f64)
             })
             .collect()
     }

@@ -6,7 +6,7 @@
 //! The integral is μ = ½·1 + ½·1 = 1, and the one-sample estimator's variance with selection
 //! probabilities α̃ is V(α̃) = m₀/α̃₀ + m₁/α̃₁ − μ² (eq. 30).
 
-use sdguide::mixture::{MIN_SAMPLES, Selection};
+use sdguide::{MIN_TECHNIQUE_SAMPLES, TechniqueError, TechniqueProbabilities};
 use sdguide_lab::synthetic::Rng;
 
 const M: [f64; 2] = [0.25, 0.45];
@@ -27,7 +27,7 @@ fn variance(p: [f64; 2]) -> f64 {
 #[test]
 fn learned_probabilities_match_the_closed_form() {
     let floor = 0.02;
-    let selection = Selection::new(2, floor).unwrap();
+    let selection = TechniqueProbabilities::new(2, floor).unwrap();
     let mut rng = Rng::new(3);
     let n = 1_000_000;
     for i in 0..2 {
@@ -49,7 +49,7 @@ fn learned_probabilities_match_the_closed_form() {
 
 #[test]
 fn optimal_selection_lowers_the_estimator_variance() {
-    let selection = Selection::new(2, 0.01).unwrap();
+    let selection = TechniqueProbabilities::new(2, 0.01).unwrap();
     let mut rng = Rng::new(5);
     for i in 0..2 {
         for _ in 0..200_000 {
@@ -99,9 +99,9 @@ fn optimal_selection_lowers_the_estimator_variance() {
 
 #[test]
 fn probabilities_stay_within_the_floor_and_unknown_techniques_keep_being_tried() {
-    let selection = Selection::new(3, 0.05).unwrap();
+    let selection = TechniqueProbabilities::new(3, 0.05).unwrap();
     assert_eq!(selection.probabilities(), vec![1.0 / 3.0; 3]);
-    for _ in 0..MIN_SAMPLES {
+    for _ in 0..MIN_TECHNIQUE_SAMPLES {
         selection.record(0, 2.0).unwrap();
         selection.record(1, 0.0).unwrap();
     }
@@ -115,16 +115,35 @@ fn probabilities_stay_within_the_floor_and_unknown_techniques_keep_being_tried()
     assert!(p.iter().all(|&x| (0.05..=1.0).contains(&x)));
     assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
     // Bad weights and indices are rejected, not recorded.
-    assert!(selection.record(0, f32::NAN).is_err());
+    assert!(matches!(
+        selection.record(0, f32::NAN),
+        Err(TechniqueError::BadWeight { .. })
+    ));
     assert!(selection.record(0, -1.0).is_err());
     assert!(selection.record(0, f32::INFINITY).is_err());
-    assert!(selection.record(7, 1.0).is_err());
+    assert_eq!(
+        selection.record(7, 1.0),
+        Err(TechniqueError::UnknownTechnique {
+            technique: 7,
+            techniques: 3
+        })
+    );
     assert_eq!(selection.probabilities(), p);
     // Bad construction.
-    assert_eq!(Selection::new(0, 0.1).unwrap_err().field, "techniques");
-    assert_eq!(Selection::new(3, 0.5).unwrap_err().field, "floor");
-    assert_eq!(Selection::new(3, f64::NAN).unwrap_err().field, "floor");
-    let mut s = Selection::new(2, 0.5).unwrap();
+    assert_eq!(
+        TechniqueProbabilities::new(0, 0.1).unwrap_err(),
+        TechniqueError::NoTechniques
+    );
+    let floor_error = |floor: f64| TechniqueProbabilities::new(3, floor).unwrap_err();
+    assert!(matches!(
+        floor_error(0.5),
+        TechniqueError::FloorOutOfRange { .. }
+    ));
+    assert!(matches!(
+        floor_error(f64::NAN),
+        TechniqueError::FloorOutOfRange { .. }
+    ));
+    let mut s = TechniqueProbabilities::new(2, 0.5).unwrap();
     s.record(0, 1.0).unwrap();
     s.reset();
     assert_eq!(s.second_moments(), vec![None, None]);
