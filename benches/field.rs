@@ -18,7 +18,8 @@ use sdguide::{
     Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
     SpatialFilter,
 };
-use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point, room_vertex};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{LightField, Workload, room_bounds, room_point, room_vertex};
 use std::hint::black_box;
 use std::sync::OnceLock;
 

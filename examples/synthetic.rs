@@ -19,7 +19,8 @@
 use glam::Vec3;
 use sdguide::sphere::{INV_SPHERE_AREA, square_to_direction};
 use sdguide::{GuidingConfig, GuidingField, LeafRule};
-use sdguide_lab::synthetic::{LightField, Rng, Workload, room_bounds, room_point};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{LightField, Workload, room_bounds, room_point};
 use std::time::Instant;
 
 struct Args {

@@ -38,13 +38,9 @@ pub struct GuidingConfig {
     /// How recorded statistics become leaf masses (default [`LeafRule::L2`]).
     pub rule: LeafRule,
     /// `c` in the spatial split rule: a spatial leaf splits when it received more than
-    /// `c·sqrt(2^k)` samples in iteration `k` (default 12000). Must be finite and ≥ 1.
-    ///
-    /// A larger `c` gives fewer, larger cells: a smaller field, whose queries cost a render
-    /// less (they move between fewer trees, which stay in the core's caches), and a guide that
-    /// follows the light's change with position less closely. On the demo's `door` scene four
-    /// times the default made a guided sample about 7% cheaper and 4% noisier
-    /// (`docs/render.md`).
+    /// `c·sqrt(2^k)` samples in iteration `k` (default 12000). Must be finite and ≥ 1. A larger
+    /// `c` gives fewer, larger cells: a smaller field with cheaper queries, and a guide that
+    /// follows the light's change with position less closely (`docs/render.md` measures it).
     pub spatial_threshold: f32,
     /// Which directional cells split at refine (default [`Refinement::VarianceGain`], chosen
     /// with the quality harness: see `docs/quality.md`).
@@ -80,15 +76,10 @@ pub struct GuidingConfig {
     /// it. Must be ≥ 64 KiB.
     pub max_memory_bytes: u64,
     /// `n0`: how many samples' worth of weight a directional cell's estimate gives its parent's
-    /// when leaf masses are computed (default 0.5, chosen with the quality harness for the
-    /// default l2 rule; the l1 rule, whose masses follow the mean, did better with 2 on most
-    /// light fields: see `docs/quality.md`). At refine, a cell's sums become
-    /// `w · own + (1 − w) · parent's / 4` with `w = n/(n + n0)`, top-down, so a sparsely
-    /// sampled leaf borrows from its siblings instead of trusting a few heavy-tailed values (a
-    /// leaf whose mass is underestimated costs variance without bound). 0 turns the masses'
-    /// shrinkage off. Refinement by variance gain shrinks its split estimates with a fixed
-    /// `n0` of its own (2), whatever this is.
-    /// Must be finite and ≥ 0.
+    /// when leaf masses are computed: at refine a cell's sums become
+    /// `w · own + (1 − w) · parent's / 4`, `w = n/(n + n0)`, top-down, so a sparse leaf
+    /// borrows from its siblings (default 0.5, chosen for the l2 rule: `docs/quality.md`).
+    /// 0 turns it off. Must be finite and ≥ 0.
     pub prior_samples: f32,
     /// How a sample is spread over spatial leaves (default [`SpatialFilter::Nearest`], chosen
     /// with the quality harness).

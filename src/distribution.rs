@@ -111,11 +111,9 @@ impl<'a> DirectionalDistribution<'a> {
     /// `refine` and the query descends them like the plain distribution; for any other normal
     /// they are computed on the way down. Either way it is the same distribution. Its density
     /// is exact (the product of the conditionals chosen), positive wherever `n·ω > 0`, and zero
-    /// on cells the estimate proves wholly below the horizon. What is drawn below lies mostly
-    /// within a hair of the horizon: on the tests' trained field 0.03% of the draws on average
-    /// over cells and normals, at most 3% where the guide's light lies just under the horizon
-    /// (against 15–98% for the plain guide). A zero or non-finite `normal` gives the plain
-    /// distribution.
+    /// on cells the estimate proves wholly below the horizon; what is drawn below lies within
+    /// a hair of the horizon (`docs/performance.md` measures how much). A zero or non-finite
+    /// `normal` gives the plain distribution.
     ///
     /// ```
     /// use sdguide::{Aabb, GuidingConfig, GuidingField};

@@ -1,5 +1,20 @@
 //! What a renderer records at a path vertex, and the checks that keep bad values out of the field.
+//!
+//! **Why a second moment without roulette.** Roulette that follows the path's throughput plays
+//! with a probability `s` that falls as a vertex's `pdf` rises, and the value it leaves, `1/s`
+//! times what arrived, has a second moment that rises with it: so `value²` alone tells the l2
+//! rule that directions the guide already samples often carry more light than they do, and the
+//! rule keeps them. With `A` the part of the value that arrived before the first roulette after
+//! the vertex and `s` that roulette's probability, `(Y² − (1 − s)·A²)/s` where the path
+//! survived it, with `Y = A + s·(value − A)`, and `A²` where it ended there, is an unbiased
+//! estimate of the square without that roulette, whatever the pdf: its expectation over the
+//! roulette's coin is `(A + B)²`, `B` what the path would have brought after it. The field
+//! scales what it records by `second_moment / value²`, so the estimate also serves
+//! [`LeafRule::L2Mixture`]'s derived value; the mean the l1 rule weighs by is unbiased either
+//! way and does not use it.
 
+#[cfg(doc)]
+use crate::rule::LeafRule;
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -54,20 +69,9 @@ pub struct Sample {
     /// normal: the sample is recorded without one.
     pub normal: Option<Vec3>,
     /// An estimate of `value²` without the variance the renderer's Russian roulette added to
-    /// `value`, for the second moment the [`L2`](crate::LeafRule::L2) rule weighs leaves by;
-    /// `None`: `value²`. Non-negative and finite, like `value`.
-    ///
-    /// Roulette that follows the path's throughput plays with a probability `s` that falls as
-    /// this vertex's `pdf` rises, and the value it leaves, `1/s` times what arrived, has a
-    /// second moment that rises with it: so `value²` alone tells the l2 rule that directions
-    /// the guide already samples often carry more light than they do, and the rule keeps them.
-    /// With `A` the part of the value that arrived before the first roulette after this vertex
-    /// and `s` that roulette's probability, `(Y² − (1 − s)·A²)/s` where the path survived it,
-    /// with `Y = A + s·(value − A)`, and `A²` where it ended there, is an unbiased estimate of
-    /// the square without that roulette, whatever the pdf (the demo's integrator computes it).
-    /// The field scales what it records by the ratio `second_moment / value²`, so the estimate
-    /// also serves [`L2Mixture`](crate::LeafRule::L2Mixture)'s derived value; the mean the
-    /// [`L1`](crate::LeafRule::L1) rule weighs by is unbiased either way and does not use it.
+    /// `value` (`None`: `value²`); non-negative and finite. With `A` what arrived before the
+    /// first roulette after this vertex and `s` its probability: `(Y² − (1 − s)·A²)/s`,
+    /// `Y = A + s·(value − A)`, where the path survived it, and `A²` where it ended there.
     pub second_moment: Option<f32>,
 }
 

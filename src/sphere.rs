@@ -22,11 +22,9 @@
 //! **Why not the cylindrical map** `(cos θ, φ)` (the SD-tree's): it squeezes each pole into a
 //! whole side of the square. A sharp light near a pole becomes a thin strip across every `φ`,
 //! and where the light's direction moves with position (parallax) it sweeps across many thin
-//! leaves, each seen by few samples. On the quality harness the cylindrical map's worst cells
-//! were exactly those where a sharp lobe crosses the pole, and their leaves got 3–30% of their
-//! optimal probability. The octahedral map has no such line: every cell of the quadtree is a
-//! compact patch of the sphere, distorted by a bounded factor: on the harness its L2 relvar is
-//! 8–19% below the cylindrical map's on every field (`docs/experiments/004-*`).
+//! leaves, each seen by few samples. The octahedral map has no such line: every cell of the
+//! quadtree is a compact patch of the sphere, distorted by a bounded factor (the quality
+//! harness compares the two maps: `docs/quality.md`).
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_PI_4, PI};

@@ -7,7 +7,8 @@ use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
     MergeError, Refinement, Sample,
 };
-use sdguide_lab::synthetic::{Bsdf, LightField, Rng, Workload, room_bounds, room_vertex};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{Bsdf, LightField, Workload, room_bounds, room_vertex};
 
 fn workload() -> Workload {
     Workload {

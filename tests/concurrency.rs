@@ -1,7 +1,8 @@
 //! Recording from many threads loses nothing: per-leaf moments equal a serial recording's.
 
 use sdguide::{DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample};
-use sdguide_lab::synthetic::{LightField, Rng, Workload};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{LightField, Workload};
 
 /// A field with a non-trivial topology (several spatial leaves, deep quadtrees).
 fn pretrained(workload: &Workload, directional_filter: DirectionalFilter) -> GuidingField {

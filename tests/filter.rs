@@ -6,7 +6,8 @@ use sdguide::sphere::square_to_direction;
 use sdguide::{
     Aabb, DirectionalFilter, GuidingConfig, GuidingField, Moments, Sample, SpatialFilter,
 };
-use sdguide_lab::synthetic::{LightField, Rng, Workload};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{LightField, Workload};
 
 fn unit_box() -> Aabb {
     Aabb::new(Vec3::ZERO, Vec3::ONE)

@@ -6,7 +6,8 @@ mod common;
 use common::{cell_integrals, chi_square_bound, held_out_points, trained};
 use glam::Vec2;
 use sdguide::LeafRule;
-use sdguide_lab::synthetic::{LightField, Rng, Workload};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{LightField, Workload};
 
 /// Depth of the trained trees in these tests: the midpoint grid below resolves every leaf.
 const DEPTH: u32 = 9;

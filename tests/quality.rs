@@ -15,7 +15,7 @@
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule, Refinement};
 use sdguide_lab::quality::{self, Budget, Holdout, Report, TestField, cell_integrals};
-use sdguide_lab::synthetic::Rng;
+use sdguide_lab::rng::Rng;
 
 const BUDGET: Budget = Budget {
     iterations: 5,

@@ -5,7 +5,8 @@ use glam::Vec3;
 use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
 use sdguide::{INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY};
 use sdguide_lab::quality::golden_section_min;
-use sdguide_lab::synthetic::{Bsdf, Rng, vmf_density};
+use sdguide_lab::rng::Rng;
+use sdguide_lab::synthetic::{Bsdf, vmf_density};
 
 const X: Vec3 = Vec3::splat(0.5);
 const BSDF: Bsdf = Bsdf {

@@ -9,6 +9,7 @@ use sdguide::{
     Aabb, Continuation, ContinuationEstimate, GuidingConfig, GuidingField, RejectReason, Splitting,
     SplittingMode,
 };
+use sdguide_lab::rng::Rng;
 
 /// Emission at every vertex, and the share of what arrives that a vertex passes on.
 const EMISSION: f64 = 1.0;
@@ -20,19 +21,9 @@ fn expected() -> f64 {
     EMISSION * (1.0 - ALBEDO.powi(MAX_DEPTH as i32 + 1)) / (1.0 - ALBEDO)
 }
 
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    fn point(&mut self) -> Vec3 {
-        Vec3::new(self.next(), self.next(), self.next())
-    }
+/// A uniform point of the unit cube.
+fn point(rng: &mut Rng) -> Vec3 {
+    Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
 }
 
 /// A walk in a "furnace" of vertices scattered through the unit cube: each vertex emits
@@ -48,7 +39,7 @@ fn walk(
     depth: u32,
     record: bool,
 ) -> (f64, f32) {
-    let x = rng.point();
+    let x = point(rng);
     let mut value = EMISSION;
     let mut cost = 1.0;
     if depth == MAX_DEPTH {
@@ -57,8 +48,8 @@ fn walk(
     let estimate = field.continuation(x);
     let pixel = expected() as f32;
     let (n, weight) = match policy.factor(&estimate, throughput, pixel) {
-        Some(q) => continuations(q, rng.next()),
-        None => continuations(ALBEDO as f32, rng.next()),
+        Some(q) => continuations(q, rng.next_f32()),
+        None => continuations(ALBEDO as f32, rng.next_f32()),
     };
     for _ in 0..n {
         let (v, c) = walk(
@@ -95,10 +86,10 @@ fn field() -> GuidingField {
 /// guide samples the walk's vertices would record.
 fn trained(policy: &Splitting) -> GuidingField {
     let mut field = field();
-    let mut rng = Rng(0x5eed);
+    let mut rng = Rng::new(0x5eed);
     for iteration in 0..4 {
         for _ in 0..4000 << iteration {
-            let x = rng.point();
+            let x = point(&mut rng);
             field.record(&sdguide::Sample {
                 position: x,
                 direction: Vec3::Z,
@@ -117,7 +108,7 @@ fn trained(policy: &Splitting) -> GuidingField {
 
 /// Mean of `n` walks and its standard error.
 fn mean_of_walks(field: &GuidingField, policy: &Splitting, n: usize, seed: u64) -> (f64, f64, f64) {
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let (mut sum, mut sum_sq, mut cost) = (0.0, 0.0, 0.0);
     for _ in 0..n {
         let (v, c) = walk(field, policy, &mut rng, 1.0, 0, false);

@@ -8,7 +8,7 @@ mod common;
 use common::trained;
 use glam::Vec3;
 use sdguide::LeafRule;
-use sdguide_lab::synthetic::Rng;
+use sdguide_lab::rng::Rng;
 
 fn normals() -> Vec<Vec3> {
     let mut rng = Rng::new(23);

@@ -7,7 +7,7 @@
 //! probabilities α̃ is V(α̃) = m₀/α̃₀ + m₁/α̃₁ − μ² (eq. 30).
 
 use sdguide::{MIN_TECHNIQUE_SAMPLES, TechniqueError, TechniqueProbabilities};
-use sdguide_lab::synthetic::Rng;
+use sdguide_lab::rng::Rng;
 
 const M: [f64; 2] = [0.25, 0.45];
 

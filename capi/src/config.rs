@@ -139,54 +139,55 @@ const REFINEMENTS: Codes<Refinement> = Codes {
     ],
 };
 
+/// `$dst { … }` with every field the two configuration types share as the same number copied
+/// from `$src`, and the fields in `$rest` (the coded ones) as given: the one list of the plain
+/// fields, for both conversions.
+macro_rules! with_plain_fields {
+    ($src:ident => $dst:ident { $($rest:tt)* }) => {
+        $dst {
+            spatial_threshold: $src.spatial_threshold,
+            subdivision_threshold: $src.subdivision_threshold,
+            max_directional_depth: $src.max_directional_depth,
+            uniform_fraction: $src.uniform_fraction,
+            max_directional_nodes: $src.max_directional_nodes,
+            max_spatial_nodes: $src.max_spatial_nodes,
+            max_memory_bytes: $src.max_memory_bytes,
+            prior_samples: $src.prior_samples,
+            gain_threshold: $src.gain_threshold,
+            max_guide_probability: $src.max_guide_probability,
+            $($rest)*
+        }
+    };
+}
+
 impl sdg_config {
     /// The C form of a library configuration.
     fn from_rust(c: &GuidingConfig) -> Result<Self, Failure> {
-        Ok(Self {
+        Ok(with_plain_fields!(c => Self {
             rule: RULES.code(c.rule)?,
-            spatial_threshold: c.spatial_threshold,
-            subdivision_threshold: c.subdivision_threshold,
-            max_directional_depth: c.max_directional_depth,
-            uniform_fraction: c.uniform_fraction,
-            max_directional_nodes: c.max_directional_nodes,
-            max_spatial_nodes: c.max_spatial_nodes,
-            max_memory_bytes: c.max_memory_bytes,
-            prior_samples: c.prior_samples,
             spatial_filter: SPATIAL_FILTERS.code(c.spatial_filter)?,
             directional_filter: DIRECTIONAL_FILTERS.code(c.directional_filter)?,
             refinement: REFINEMENTS.code(c.refinement)?,
-            gain_threshold: c.gain_threshold,
-            max_guide_probability: c.max_guide_probability,
             guide_cost: c.guide_cost.unwrap_or(0.0),
             flags: if c.guide_cost.is_some() {
                 SDG_CONFIG_GUIDE_COST
             } else {
                 0
             },
-        })
+        }))
     }
 
     /// The library configuration this one means; unknown codes fail here, values out of range
     /// at the field's validation.
     pub(crate) fn to_rust(self) -> Result<GuidingConfig, Failure> {
-        let c = &self;
-        Ok(GuidingConfig {
+        let c = self;
+        Ok(with_plain_fields!(c => GuidingConfig {
             rule: RULES.value(c.rule)?,
-            spatial_threshold: c.spatial_threshold,
-            subdivision_threshold: c.subdivision_threshold,
-            max_directional_depth: c.max_directional_depth,
-            uniform_fraction: c.uniform_fraction,
-            max_directional_nodes: c.max_directional_nodes,
-            max_spatial_nodes: c.max_spatial_nodes,
-            max_memory_bytes: c.max_memory_bytes,
-            prior_samples: c.prior_samples,
             spatial_filter: SPATIAL_FILTERS.value(c.spatial_filter)?,
             directional_filter: DIRECTIONAL_FILTERS.value(c.directional_filter)?,
             refinement: REFINEMENTS.value(c.refinement)?,
-            gain_threshold: c.gain_threshold,
-            max_guide_probability: c.max_guide_probability,
             guide_cost: (c.flags & SDG_CONFIG_GUIDE_COST != 0).then_some(c.guide_cost),
-        })
+        }))
     }
 }
 

@@ -3,14 +3,13 @@
 
 use crate::error::finite_u;
 use crate::error::{arg, fail, finite, guard, put, sdg_status};
-use crate::field::{sdg_field, write_sample};
+use crate::field::{destroy, sdg_field, write_sample};
 use crate::lock::{HELD, reentrant};
 use crate::types::sdg_vec3;
 use glam::{Vec2, Vec3};
 use parking_lot::RawRwLock;
 use parking_lot::lock_api::ArcRwLockReadGuard;
 use sdguide::GuidingField;
-use std::panic::{AssertUnwindSafe, catch_unwind};
 
 /// The distribution of one position (opaque), from `sdg_field_distribution`. It holds the
 /// field's lock shared: destroy it with `sdg_distribution_destroy` before refining, or the
@@ -180,9 +179,7 @@ pub unsafe extern "C" fn sdg_distribution_guide_probability(
 /// `dist` must be null or a distribution from this library, not yet destroyed.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sdg_distribution_destroy(dist: *mut sdg_distribution) {
-    if !dist.is_null() {
-        // SAFETY: created by `Box::into_raw` in `sdg_field_distribution`, destroyed once.
-        let d = unsafe { Box::from_raw(dist) };
-        let _ = catch_unwind(AssertUnwindSafe(move || drop(d)));
-    }
+    // SAFETY: created by `Box::into_raw` in `sdg_field_distribution`, destroyed once (the
+    // caller's contract).
+    unsafe { destroy(dist) }
 }

@@ -56,10 +56,20 @@ pub unsafe extern "C" fn sdg_field_create(
 /// is using.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sdg_field_destroy(field: *mut sdg_field) {
-    if !field.is_null() {
-        // SAFETY: created by `Box::into_raw` in `new_handle`, destroyed once (caller's contract).
-        let handle = unsafe { Box::from_raw(field) };
-        let _ = catch_unwind(AssertUnwindSafe(move || drop(handle)));
+    // SAFETY: created by `Box::into_raw` in `new_handle`, destroyed once (caller's contract).
+    unsafe { destroy(field) }
+}
+
+/// Drops a handle C got from `Box::into_raw`; null is ignored, and a panic in the drop stays
+/// on this side of the boundary.
+///
+/// # Safety
+/// `handle` must be null or from `Box::into_raw`, and not yet destroyed.
+pub(crate) unsafe fn destroy<T>(handle: *mut T) {
+    if !handle.is_null() {
+        // SAFETY: the caller's contract.
+        let boxed = unsafe { Box::from_raw(handle) };
+        let _ = catch_unwind(AssertUnwindSafe(move || drop(boxed)));
     }
 }
 

@@ -1,9 +1,11 @@
 //! sdguide's lab: what the tests, benchmarks, examples and the quality tables measure the
 //! library with, kept out of its public API.
 //!
+//! - [`rng`]: the deterministic random number generator every crate of the workspace draws
+//!   from (SplitMix64).
 //! - [`synthetic`]: analytic light fields (sums of von Mises–Fisher lobes, with their integrals
-//!   in closed form), a deterministic random number generator, and the standard training
-//!   workload that trains a field the way a path tracer would.
+//!   in closed form), and the standard training workload that trains a field the way a path
+//!   tracer would.
 //! - [`quality`]: the quality harness — the exact variance of the estimator a trained field
 //!   gives, against the best any density on the same partition could do (`docs/quality.md`).
 
@@ -11,4 +13,5 @@
 #![forbid(unsafe_code)]
 
 pub mod quality;
+pub mod rng;
 pub mod synthetic;

@@ -33,7 +33,8 @@
 //! follows where a sharp lobe happens to point from those few, which no density learned for
 //! the whole cell can, and comes out too low.
 
-use crate::synthetic::{Bsdf, LightField, Rng, VmfLobe, Workload, room_bounds, room_point};
+use crate::rng::Rng;
+use crate::synthetic::{Bsdf, LightField, VmfLobe, Workload, room_bounds, room_point};
 use glam::Vec3;
 use rayon::prelude::*;
 use sdguide::MIN_GUIDE_PROBABILITY;

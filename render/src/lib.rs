@@ -27,7 +27,11 @@ pub mod passes;
 pub mod probe;
 pub mod reference;
 pub mod render;
-pub mod rng;
 pub mod sampler;
 pub mod scene;
 pub mod scenes;
+
+/// The demo's random numbers: the workspace's SplitMix64 generator. Every pixel and pass draws
+/// from a stream of its own (see [`render::render_pass`]); the stored references' seeds are
+/// derived with it (`reference::seed`).
+pub use sdguide_lab::rng;

@@ -7,6 +7,7 @@ mod common;
 
 use common::trained_door;
 use glam::Vec3;
+use sdguide_render::backend::Backend;
 use sdguide_render::geometry::Frame;
 use sdguide_render::material::Material;
 use sdguide_render::rng::Rng;
@@ -28,7 +29,7 @@ fn bin(d: Vec3) -> usize {
 /// and the surface-aware guide draw (almost) nothing: the integrand is zero there. Bins the
 /// mixture reaches only through the guide's uniform floor get few samples, so `n` is large
 /// enough for the 5σ bound's variance estimate to hold there too.
-fn check_sampler(sampler: &VertexSampler<'_>, normal: Vec3, n: usize, seed: u64) {
+fn check_sampler<B: Backend>(sampler: &VertexSampler<'_, B>, normal: Vec3, n: usize, seed: u64) {
     let frame = Frame::new(normal);
     let bins = Z_BINS * PHI_BINS;
     let (mut sum, mut sum2) = (vec![0f64; bins], vec![0f64; bins]);

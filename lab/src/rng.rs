@@ -1,14 +1,16 @@
-//! The demo's random numbers: SplitMix64, small, fast and deterministic, so a seed fixes a
-//! render. Every pixel and pass draws from a stream of its own (see `render::render_pass`);
-//! the stored references' seeds are derived with it (`reference::seed`).
+//! The random numbers of the workspace's tests, benchmarks, examples and demo renderer:
+//! SplitMix64, small, fast and deterministic, so that a seed fixes a run.
 
 use glam::Vec2;
 
-/// A SplitMix64 generator. Not for cryptography; good for Monte Carlo with fixed seeds.
+/// A small, fast, deterministic random number generator (SplitMix64).
+///
+/// Not for cryptography; good enough for Monte Carlo tests with fixed seeds.
 ///
 /// ```
-/// use sdguide_render::rng::Rng;
-/// let (mut a, mut b) = (Rng::new(7), Rng::new(7));
+/// use sdguide_lab::rng::Rng;
+/// let mut a = Rng::new(7);
+/// let mut b = Rng::new(7);
 /// assert_eq!(a.next_f32(), b.next_f32());
 /// ```
 #[derive(Clone, Debug)]
@@ -17,13 +19,13 @@ pub struct Rng(u64);
 impl Rng {
     /// A generator whose sequence is fixed by `seed`.
     pub fn new(seed: u64) -> Self {
-        Self(finalize(seed ^ 0x5851_f42d_4c95_7f2d))
+        Self(mix(seed ^ 0x5851_f42d_4c95_7f2d))
     }
 
     /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        finalize(self.0)
+        mix(self.0)
     }
 
     /// A uniform number in `[0, 1)` with 24 random bits.
@@ -37,8 +39,8 @@ impl Rng {
     }
 }
 
-/// SplitMix64's output function (Steele, Lea and Flood 2014).
-fn finalize(mut z: u64) -> u64 {
+/// The SplitMix64 finalizer.
+pub(crate) fn mix(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)
