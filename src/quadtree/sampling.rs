@@ -267,7 +267,7 @@ pub(crate) struct SamplingTree {
     nodes: Box<[SamplingNode]>,
     /// What queries descend, derived from `nodes`: the first [`GRID_DEPTH`] levels as a grid,
     /// and the cuts below it. (One pointer: the tree's pointers share a cache line with what
-    /// else a query reads, see [`super::DirectionalTree`].)
+    /// else a query reads, see [`Region`](crate::region::Region).)
     grid: Box<Grid>,
 }
 

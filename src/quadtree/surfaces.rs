@@ -98,7 +98,7 @@ impl Slot {
 
 /// A spatial leaf's tally of recorded normals, and its stored products.
 ///
-/// What a query reads comes first, 32 bytes: [`super::DirectionalTree`] puts them on the cache
+/// What a query reads comes first, 32 bytes: [`Region`](crate::region::Region) puts them on the cache
 /// line of its sampling tree, so a query whose normal has no product touches no other line.
 #[derive(Debug, Default)]
 #[repr(C)]
