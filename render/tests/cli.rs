@@ -85,6 +85,29 @@ fn without_roulette_every_method_runs_beside_its_unguided_baseline() {
 }
 
 #[test]
+fn without_rule_and_roulette_the_recommended_comparison_runs() {
+    let out = std::env::temp_dir().join(format!("sdguide-cli-default-{}", std::process::id()));
+    let run = render(&out, &["--scene", "door"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let rows: Vec<&str> = report
+        .lines()
+        .filter(|l| l.starts_with("| unguided") || l.starts_with("| guided"))
+        .map(|l| l.split('|').nth(1).unwrap().trim())
+        .collect();
+    assert_eq!(
+        rows,
+        ["unguided", "unguided-ears", "guided-l2-ears"],
+        "{report}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
 fn bad_options_are_refused_with_a_message() {
     let out = std::env::temp_dir().join(format!("sdguide-cli-bad-{}", std::process::id()));
     for args in [

@@ -2,7 +2,7 @@
 
 use clap::{Parser, ValueEnum};
 use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement};
-use sdguide_render::method::{Budget, Rrs};
+use sdguide_render::method::{Budget, Method, Rrs};
 use sdguide_render::scenes;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -25,9 +25,12 @@ struct Cli {
     /// Cap on the final render's samples per pixel.
     #[arg(long)]
     spp: Option<u32>,
-    /// Leaf rules of the guided methods (`both`: l1 and l2; `all`: l1, l2 and l2m).
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "both")]
-    rule: Vec<RuleArg>,
+    /// Leaf rules of the guided methods (`both`: l1 and l2; `all`: l1, l2 and l2m). Without
+    /// `--rule` and `--rrs`: the recommended comparison (unguided with classic roulette, and
+    /// unguided and guided by the l2 rule with efficiency-aware roulette and splitting); with
+    /// only one of them, the other is `both` or `classic`.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    rule: Option<Vec<RuleArg>>,
     /// Where images, caches and the report go.
     #[arg(long, default_value = "out/render")]
     out: PathBuf,
@@ -76,8 +79,8 @@ struct Cli {
     nee: OnOff,
     /// Roulette and splitting variants, each run with every method (the peer: those without
     /// splitting).
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "classic")]
-    rrs: Vec<RrsArg>,
+    #[arg(long, value_enum, value_delimiter = ',')]
+    rrs: Option<Vec<RrsArg>>,
     /// Render the scene's reference instead (with `--spp` and `--time 0`).
     #[arg(long)]
     reference: bool,
@@ -129,9 +132,55 @@ pub struct Args {
     /// Roulette and splitting variants, each run with every method (the peer: those without
     /// splitting).
     pub rrs: Vec<Rrs>,
+    /// Neither `--rule` nor `--rrs` was given: render the recommended comparison (see
+    /// [`Args::methods`]).
+    pub recommended: bool,
 }
 
 impl Args {
+    /// The methods to render, unguided with classic roulette first (the baseline of every
+    /// ratio): the recommended comparison — unguided with classic roulette, unguided with
+    /// efficiency-aware roulette and splitting, and guided by the default rule with them —
+    /// or every rule with every roulette asked for, beside unguided with each; then the peer's
+    /// methods, each with the roulettes asked for that do not split (classic if none such is).
+    pub fn methods(&self) -> Vec<(Method, Rrs)> {
+        let mut methods: Vec<(Method, Rrs)> = if self.recommended {
+            vec![
+                (Method::Unguided, Rrs::Classic),
+                (Method::Unguided, Rrs::Ears),
+                (Method::Guided(GuidingConfig::default().rule), Rrs::Ears),
+            ]
+        } else {
+            let unguided = self.rrs.iter().map(|&rrs| (Method::Unguided, rrs));
+            let guided = self
+                .rules
+                .iter()
+                .flat_map(|&rule| self.rrs.iter().map(move |&rrs| (Method::Guided(rule), rrs)));
+            unguided.chain(guided).collect()
+        };
+        if !methods.contains(&(Method::Unguided, Rrs::Classic)) {
+            methods.insert(0, (Method::Unguided, Rrs::Classic));
+        }
+        methods.sort_by_key(|&(m, r)| (m != Method::Unguided || r != Rrs::Classic) as u8);
+        let mut roulettes: Vec<Rrs> = self
+            .rrs
+            .iter()
+            .copied()
+            .filter(|r| r.mode().is_none())
+            .collect();
+        if roulettes.is_empty() {
+            roulettes.push(Rrs::Classic);
+        }
+        for &cosine_product in &self.peers {
+            methods.extend(
+                roulettes
+                    .iter()
+                    .map(|&rrs| (Method::OpenPgl { cosine_product }, rrs)),
+            );
+        }
+        methods
+    }
+
     /// The configuration of the fields the guided methods train (each with its rule).
     pub fn config(&self) -> GuidingConfig {
         GuidingConfig {
@@ -183,7 +232,14 @@ pub fn parse() -> Result<Args, String> {
         },
         seeds: cli.seeds,
         budget,
-        rules: cli.rule.iter().flat_map(|r| r.rules()).copied().collect(),
+        rules: cli
+            .rule
+            .as_deref()
+            .unwrap_or(&[RuleArg::Both])
+            .iter()
+            .flat_map(|r| r.rules())
+            .copied()
+            .collect(),
         out: cli.out,
         threads: cli.threads,
         seed: cli.seed,
@@ -209,16 +265,20 @@ pub fn parse() -> Result<Args, String> {
         cost: cli.cost,
         rounds: cli.rounds,
         peers,
-        rrs: cli
-            .rrs
-            .iter()
-            .map(|r| match r {
-                RrsArg::Classic => Rrs::Classic,
-                RrsArg::Ear => Rrs::Ear,
-                RrsArg::Ears => Rrs::Ears,
-                RrsArg::None => Rrs::None,
-            })
-            .collect(),
+        recommended: cli.rule.is_none() && cli.rrs.is_none(),
+        rrs: match &cli.rrs {
+            Some(rrs) => rrs.as_slice(),
+            None if cli.rule.is_none() => &[RrsArg::Classic, RrsArg::Ears],
+            None => &[RrsArg::Classic],
+        }
+        .iter()
+        .map(|r| match r {
+            RrsArg::Classic => Rrs::Classic,
+            RrsArg::Ear => Rrs::Ear,
+            RrsArg::Ears => Rrs::Ears,
+            RrsArg::None => Rrs::None,
+        })
+        .collect(),
     })
 }
 

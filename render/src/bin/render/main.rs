@@ -125,46 +125,20 @@ fn run() -> Result<(), String> {
     }
     std::fs::create_dir_all(&args.out).map_err(|e| e.to_string())?;
 
-    // Every method with every roulette (unguided classic first: the baseline of the ratios).
-    let mut methods: Vec<(Method, Rrs)> = Vec::new();
-    for &rrs in &args.rrs {
-        methods.push((Method::Unguided, rrs));
-    }
-    for &rule in &args.rules {
-        methods.extend(args.rrs.iter().map(|&rrs| (Method::Guided(rule), rrs)));
-    }
-    if !methods.contains(&(Method::Unguided, Rrs::Classic)) {
-        methods.insert(0, (Method::Unguided, Rrs::Classic));
-    }
-    methods.sort_by_key(|&(m, r)| (m != Method::Unguided || r != Rrs::Classic) as u8);
-    // The peer has no splitting: it runs with each roulette asked for that has none (classic
-    // if none such is).
-    let mut roulettes: Vec<Rrs> = args
-        .rrs
-        .iter()
-        .copied()
-        .filter(|r| r.mode().is_none())
-        .collect();
-    if roulettes.is_empty() {
-        roulettes.push(Rrs::Classic);
-    }
-    for &cosine_product in &args.peers {
-        methods.extend(
-            roulettes
-                .iter()
-                .map(|&rrs| (Method::OpenPgl { cosine_product }, rrs)),
-        );
-    }
-    let mut report = report::header(&args, &command);
+    let methods = args.methods();
+    let mut body = String::new();
     let mut summaries = Vec::new();
     for scene in &scenes {
         let mut runs = Vec::new();
         for seed in args.seed..args.seed + args.seeds {
             runs.push(render_scene(scene, &methods, &args, seed)?);
         }
-        report += &report::scene_report(scene, &args, &runs);
+        body += &report::scene_report(scene, &args, &runs);
         summaries.push((scene.name.clone(), runs));
     }
+    let mut report = report::header(&args, &command);
+    report += &report::verdict(&summaries);
+    report += &body;
     if summaries.len() > 1 || args.seeds > 1 {
         report += &report::summary(&summaries);
     }

@@ -2,9 +2,9 @@
 //! the probe and cost reports of a trained cache.
 
 use crate::cli::Args;
-use sdguide::GuidingField;
+use sdguide::{GuidingConfig, GuidingField};
 use sdguide_render::cost::paired_cost;
-use sdguide_render::method::{Method, Outcome};
+use sdguide_render::method::{Method, Outcome, Rrs};
 use sdguide_render::reference;
 use sdguide_render::scene::Scene;
 use std::fmt::Write as _;
@@ -44,12 +44,15 @@ impl Run {
     /// Method `i`'s relMSE × spp over that of unguided with the same roulette (without
     /// splitting, the peer's), when the run has it.
     fn per_sample_same_roulette(&self, i: usize) -> Option<f64> {
+        Some(self.ratios_to(i, self.same_roulette(i)?)?.1)
+    }
+
+    /// The unguided method with method `i`'s roulette and splitting, when the run has it.
+    fn same_roulette(&self, i: usize) -> Option<usize> {
         let rrs = self.outcomes[i].outcome.rrs;
-        let base = self
-            .outcomes
+        self.outcomes
             .iter()
-            .position(|r| r.outcome.method == Method::Unguided && r.outcome.rrs == rrs)?;
-        Some(self.ratios_to(i, base)?.1)
+            .position(|r| r.outcome.method == Method::Unguided && r.outcome.rrs == rrs)
     }
 
     /// [`Run::ratios`] over method `base`'s instead of unguided's.
@@ -273,6 +276,72 @@ fn seed_table(run: &Run) -> String {
     r
 }
 
+/// The mean of ratios over seeds, with their range when there are several; `—` for none.
+fn spread(v: &[f64]) -> String {
+    if v.is_empty() {
+        return "—".to_string();
+    }
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+    if v.len() == 1 {
+        format!("{mean:.3}×")
+    } else {
+        format!("{mean:.3}× ({lo:.3}–{hi:.3})")
+    }
+}
+
+/// The report's opening line: per scene, what the recommended configuration — the default
+/// rule with efficiency-aware roulette and splitting — bought at equal time, training
+/// included, against unguided path tracing with classic roulette and with the same roulette
+/// and splitting (mean and range over seeds). Empty when the run has no such method.
+pub fn verdict(scenes: &[(String, Vec<Run>)]) -> String {
+    let recommended = (Method::Guided(GuidingConfig::default().rule), Rrs::Ears);
+    let mut lines = Vec::new();
+    for (name, runs) in scenes {
+        let (mut classic, mut same) = (Vec::new(), Vec::new());
+        for run in runs {
+            let Some(i) = run
+                .outcomes
+                .iter()
+                .position(|r| (r.outcome.method, r.outcome.rrs) == recommended)
+            else {
+                continue;
+            };
+            classic.extend(run.ratios(i).map(|r| r.0));
+            same.extend(
+                run.same_roulette(i)
+                    .and_then(|base| run.ratios_to(i, base))
+                    .map(|r| r.0),
+            );
+        }
+        if classic.is_empty() {
+            continue;
+        }
+        let image = match runs.len() {
+            1 => format!("`{name}-compare.png`"),
+            _ => format!("`{name}-compare-seed<N>.png`"),
+        };
+        lines.push(format!(
+            "on `{name}`, **{}** the relMSE of unguided path tracing with classic roulette, {} \
+             that of unguided with the same roulette and splitting ({image})",
+            spread(&classic),
+            spread(&same),
+        ));
+    }
+    if lines.is_empty() {
+        return String::new();
+    }
+    format!(
+        "**Verdict.** Guided by sdguide (the l2 rule, with its efficiency-aware roulette and \
+         splitting), at equal time, training included: {}.\n\n",
+        lines.join("; ")
+    )
+}
+
 /// Mean and range over the seeds of each scene's ratios to unguided, per method.
 pub fn summary(scenes: &[(String, Vec<Run>)]) -> String {
     let seeds = scenes.first().map_or(0, |(_, runs)| runs.len());
@@ -282,22 +351,6 @@ pub fn summary(scenes: &[(String, Vec<Run>)]) -> String {
          unguided, same roulette | time per spp vs unguided |\n|---|---|---:|---:|---:|---:|\n",
         if seeds == 1 { "" } else { "s" }
     );
-    let spread = |v: &[f64]| {
-        if v.is_empty() {
-            return "—".to_string();
-        }
-        let mean = v.iter().sum::<f64>() / v.len() as f64;
-        let (lo, hi) = v
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-                (lo.min(x), hi.max(x))
-            });
-        if v.len() == 1 {
-            format!("{mean:.3}×")
-        } else {
-            format!("{mean:.3}× ({lo:.3}–{hi:.3})")
-        }
-    };
     for (name, runs) in scenes {
         let methods = runs.first().map_or(0, |run| run.outcomes.len());
         for i in 1..methods {
