@@ -6,8 +6,9 @@
 //! density is the tree's density on the square divided by 4π (the map of [`crate::sphere`]
 //! preserves area), and `sample` returns exactly the density `pdf` gives its direction.
 
-use crate::quadtree::DirectionalCell;
-use crate::quadtree::{HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree, SurfaceTree, Surfaces};
+use crate::quadtree::{
+    DirectionalCell, HORIZON_DEPTH, SURFACE_DEPTH, SamplingTree, SurfaceTree, Surfaces,
+};
 use crate::sphere::{self, INV_SPHERE_AREA, square_to_direction};
 use crate::splitting::ContinuationEstimate;
 use glam::{Vec2, Vec3};

@@ -8,21 +8,16 @@
 use crate::bounds::Aabb;
 use crate::config::{ConfigError, GuidingConfig};
 use crate::distribution::DirectionalDistribution;
-use crate::filter::SpatialFilter;
-use crate::filter::hash_jitter;
-use crate::moments::Moments;
-use crate::moments::weights;
-use crate::quadtree::DirectionalCell;
-use crate::quadtree::{bytes_per_node, tallies};
+use crate::filter::{SpatialFilter, hash_jitter};
+use crate::moments::{Moments, weights};
+use crate::quadtree::{DirectionalCell, bytes_per_node, tallies};
 use crate::region::{RefineOutcome, Region, StepParams};
-use crate::rule::LeafRule;
-use crate::rule::mixture_value;
+use crate::rule::{LeafRule, mixture_value};
 use crate::sample::{RejectReason, Sample};
 use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
 use crate::splitting::{Continuation, ContinuationEstimate};
-use crate::stats::RejectCounters;
-use crate::stats::{FieldStats, Rejections};
+use crate::stats::{FieldStats, RejectCounters, Rejections};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 

@@ -19,16 +19,14 @@ use crate::filter::{DirectionalFilter, SpatialFilter};
 use crate::guide_probability::{
     GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
 };
-use crate::moments::Moments;
-use crate::moments::{AtomicMoments, AtomicQuadrants};
+use crate::moments::{AtomicMoments, AtomicQuadrants, Moments};
 use crate::quadtree::{self, RecordingTree, SLOTS, SamplingNode, SamplingTree, Tallied};
 use crate::refinement::Refinement;
 use crate::region::Region;
 use crate::rule::LeafRule;
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
-use crate::stats::RejectCounters;
-use crate::stats::Rejections;
+use crate::stats::{RejectCounters, Rejections};
 use glam::Vec3;
 use std::fmt;
 use std::io::{self, Read, Write};

@@ -4,8 +4,7 @@
 
 use super::{DirectionalCell, LEAF_BIT, fixed, quadrant_bits};
 use crate::filter::DirectionalFilter;
-use crate::moments::Moments;
-use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
+use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants, Moments};
 use glam::Vec2;
 
 /// A child slot of a recording node under construction that will become a leaf.
