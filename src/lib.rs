@@ -79,6 +79,8 @@
 //!   [`ContinuationEstimate`], [`Splitting`].
 //! - `distribution`: what queries return — [`DirectionalDistribution`] and its product with a
 //!   surface's clamped cosine, [`SurfaceDistribution`].
+//! - `batch`: the queries and `record` over slices, for wavefront renderers
+//!   ([`GuidingField::sample_batch`], [`BatchError`]).
 //! - `cache` (save, load: [`CacheError`]; the format is `docs/cache-format.md`), `merge`
 //!   ([`MergeError`]), `stats` ([`FieldStats`]).
 //! - [`sphere`]: the equal-area map between directions and the unit square.
@@ -91,6 +93,7 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+mod batch;
 mod bounds;
 mod cache;
 mod config;
@@ -116,6 +119,7 @@ pub use glam;
 
 // The public surface: every item has this one path (`sphere`'s functions are reached through
 // their module, `sdguide::sphere::…`).
+pub use batch::{BATCH_CHUNK, BatchError};
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH, MIN_UNIFORM_FRACTION};

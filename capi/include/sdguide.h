@@ -142,6 +142,24 @@ typedef struct sdg_distribution sdg_distribution;
 typedef struct sdg_field sdg_field;
 
 /*
+ A 3D vector (world space).
+ */
+typedef struct {
+  /*
+   x
+   */
+  float x;
+  /*
+   y
+   */
+  float y;
+  /*
+   z
+   */
+  float z;
+} sdg_vec3;
+
+/*
  The field's configuration; `sdg_config_default` fills in the defaults. Fields mean what the
  same-named fields of the Rust `GuidingConfig` mean.
  */
@@ -215,24 +233,6 @@ typedef struct {
    */
   uint32_t flags;
 } sdg_config;
-
-/*
- A 3D vector (world space).
- */
-typedef struct {
-  /*
-   x
-   */
-  float x;
-  /*
-   y
-   */
-  float y;
-  /*
-   z
-   */
-  float z;
-} sdg_vec3;
 
 /*
  One recorded path vertex (see the Rust `Sample`): at `position`, light of `value` arrived
@@ -402,6 +402,59 @@ typedef struct {
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
+
+/*
+ For each of `count` lanes `i`, draws a direction from the distribution at `positions[i]`
+ (with `normals` not null, its product with the cosine about `normals[i]`; a zero normal
+ gives the plain distribution) with the uniform numbers `u[2i]`, `u[2i + 1]`: writes the unit
+ direction into `directions[i]` and its solid-angle pdf into `pdfs[i]`.
+ `SDG_STATUS_INVALID_ARGUMENT` (and nothing written) when a position, normal or number is not
+ finite.
+
+ # Safety
+ `field` must be null or valid; unless `count` is 0, `positions`, `directions` and `pdfs`
+ must be null or point to `count` entries, `u` to `2·count`, and `normals` be null or point
+ to `count`; the outputs must not overlap the inputs.
+ */
+sdg_status sdg_field_sample_batch(const sdg_field *field,
+                                  size_t count,
+                                  const sdg_vec3 *positions,
+                                  const sdg_vec3 *normals,
+                                  const float *u,
+                                  sdg_vec3 *directions,
+                                  float *pdfs);
+
+/*
+ For each of `count` lanes `i`, writes into `pdfs[i]` the solid-angle pdf of
+ `directions[i]` under the distribution at `positions[i]` (with `normals` not null, its
+ product with the cosine about `normals[i]`). `SDG_STATUS_INVALID_ARGUMENT` (and nothing
+ written) when a position, normal or direction is not finite.
+
+ # Safety
+ `field` must be null or valid; unless `count` is 0, `positions`, `directions` and `pdfs`
+ must be null or point to `count` entries, and `normals` be null or point to `count`; `pdfs`
+ must not overlap the inputs.
+ */
+sdg_status sdg_field_pdf_batch(const sdg_field *field,
+                               size_t count,
+                               const sdg_vec3 *positions,
+                               const sdg_vec3 *normals,
+                               const sdg_vec3 *directions,
+                               float *pdfs);
+
+/*
+ For each of `count` lanes `i`, writes into `probabilities[i]` the guide probability at
+ `positions[i]` (see `sdg_distribution_guide_probability`). `SDG_STATUS_INVALID_ARGUMENT`
+ (and nothing written) when a position is not finite.
+
+ # Safety
+ `field` must be null or valid; unless `count` is 0, `positions` and `probabilities` must be
+ null or point to `count` entries that do not overlap.
+ */
+sdg_status sdg_field_guide_probability_batch(const sdg_field *field,
+                                             size_t count,
+                                             const sdg_vec3 *positions,
+                                             float *probabilities);
 
 /*
  Saves the field to `path` atomically (temporary file, flush, rename).

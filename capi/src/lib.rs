@@ -24,8 +24,9 @@
 //!
 //! One module per object: `config` (`sdg_config` and its one conversion each way), `types`
 //! (vectors, samples, continuations, the splitting policy), `field` and `distribution` (the two
-//! handles), `cache` (save, load, merge), `lock` (the field's lock), `error` (status codes and
-//! the checks every entry point shares). An optional field of a C struct is said to be present
+//! handles), `batch` (the field's queries over arrays, for wavefront renderers), `cache` (save,
+//! load, merge), `lock` (the field's lock), `error` (status codes and the checks every entry
+//! point shares). An optional field of a C struct is said to be present
 //! one way only: its bit in the struct's `flags` (`SDG_SAMPLE_*`, `SDG_CONFIG_*`).
 //!
 //! This crate is the only place in sdguide with `unsafe` code: reading and writing through the
@@ -34,6 +35,7 @@
 #![allow(non_camel_case_types)]
 #![deny(missing_docs)]
 
+mod batch;
 mod cache;
 mod config;
 mod distribution;
@@ -42,6 +44,7 @@ mod field;
 mod lock;
 mod types;
 
+pub use batch::*;
 pub use cache::*;
 pub use config::*;
 pub use distribution::*;

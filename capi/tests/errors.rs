@@ -692,3 +692,109 @@ fn optional_fields_are_read_only_with_their_flags() {
         assert!(last_error().contains("guide_cost"), "{}", last_error());
     }
 }
+
+#[test]
+fn batch_calls_are_the_one_vertex_calls_and_refuse_bad_lanes() {
+    let f = field();
+    let mut rng = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 40) as f32 / (1u64 << 24) as f32
+    };
+    // SAFETY: valid pointers throughout, arrays of the lengths passed.
+    unsafe {
+        // Train a little, so the distributions are not all uniform.
+        for _ in 0..3 {
+            for _ in 0..20_000 {
+                let s = sdg_sample {
+                    position: v(next(), next(), next()),
+                    direction: v(next() - 0.5, next() - 0.5, 0.2),
+                    value: 1.0,
+                    pdf: 0.1,
+                    ..Default::default()
+                };
+                sdg_field_record(f, &s);
+            }
+            assert_eq!(sdg_field_refine(f), sdg_status::Ok);
+        }
+        let n = 3000;
+        let positions: Vec<sdg_vec3> = (0..n).map(|_| v(next(), next(), next())).collect();
+        let normals: Vec<sdg_vec3> = (0..n).map(|i| v(0.0, (i % 2) as f32, 1.0)).collect();
+        let u: Vec<f32> = (0..2 * n).map(|_| next()).collect();
+        let (mut d, mut p) = (vec![sdg_vec3::default(); n], vec![0.0f32; n]);
+        for normals in [null(), normals.as_ptr()] {
+            let status = sdg_field_sample_batch(
+                f,
+                n,
+                positions.as_ptr(),
+                normals,
+                u.as_ptr(),
+                d.as_mut_ptr(),
+                p.as_mut_ptr(),
+            );
+            assert_eq!(status, sdg_status::Ok);
+            let mut back = vec![0.0f32; n];
+            let status = sdg_field_pdf_batch(
+                f,
+                n,
+                positions.as_ptr(),
+                normals,
+                d.as_ptr(),
+                back.as_mut_ptr(),
+            );
+            assert_eq!(status, sdg_status::Ok);
+            for i in (0..n).step_by(37) {
+                let mut dist = null_mut();
+                assert_eq!(
+                    sdg_field_distribution(f, positions[i], &mut dist),
+                    sdg_status::Ok
+                );
+                if !normals.is_null() {
+                    sdg_distribution_set_normal(dist, *normals.add(i));
+                }
+                let (mut one_d, mut one_p, mut one_q) = (sdg_vec3::default(), 0.0, 0.0);
+                sdg_distribution_sample(dist, u[2 * i], u[2 * i + 1], &mut one_d, &mut one_p);
+                sdg_distribution_pdf(dist, one_d, &mut one_q);
+                sdg_distribution_destroy(dist);
+                assert_eq!((d[i], p[i].to_bits()), (one_d, one_p.to_bits()), "lane {i}");
+                assert_eq!(back[i].to_bits(), one_q.to_bits(), "lane {i}");
+            }
+        }
+        let mut a = vec![0.0f32; n];
+        assert_eq!(
+            sdg_field_guide_probability_batch(f, n, positions.as_ptr(), a.as_mut_ptr()),
+            sdg_status::Ok
+        );
+        assert!(a.iter().all(|&a| (0.0..=1.0).contains(&a)));
+        // A non-finite lane is refused, naming it, and nothing is written.
+        let mut bad = positions.clone();
+        bad[7].y = f32::NAN;
+        p.fill(-1.0);
+        assert_eq!(
+            sdg_field_sample_batch(
+                f,
+                n,
+                bad.as_ptr(),
+                null(),
+                u.as_ptr(),
+                d.as_mut_ptr(),
+                p.as_mut_ptr()
+            ),
+            sdg_status::InvalidArgument
+        );
+        assert!(last_error().contains("lane 7"), "{}", last_error());
+        assert!(p.iter().all(|&p| p == -1.0));
+        // Null arrays are refused unless there are no lanes.
+        assert_eq!(
+            sdg_field_pdf_batch(f, n, positions.as_ptr(), null(), null(), p.as_mut_ptr()),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_field_pdf_batch(f, 0, null(), null(), null(), null_mut()),
+            sdg_status::Ok
+        );
+        sdg_field_destroy(f);
+    }
+}

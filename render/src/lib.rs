@@ -2,8 +2,9 @@
 //! exactly as a user would, and shows what guiding buys at equal time.
 //!
 //! The flow: a [`scene::Scene`] (built in code, [`scenes`]) is rendered by
-//! [`render::render`] in passes of tiles; every path is traced by [`integrator::radiance`],
-//! which is the reference for wiring sdguide into a path tracer. A guided render's training
+//! [`method::render`] in passes of tiles ([`render`](mod@render)); every path is traced by
+//! [`integrator::radiance`], generic over the guiding [`backend::Backend`], which is the
+//! reference for wiring sdguide into a path tracer. A guided render's training
 //! passes are not thrown away: [`passes`] combines them with the final one by inverse
 //! variance. Images are compared with
 //! [`image::Image::rel_mse`] against a stored reference ([`reference`](mod@reference)). The

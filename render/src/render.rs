@@ -141,9 +141,9 @@ fn render_samples<B: Backend>(
 
 /// One training pass: renders `spp` samples per pixel at `size`, recording every path into
 /// `field`, then refines the field; returns the pass's image (an unbiased estimate, for
-/// [`combine`]). Training passes draw from random streams of their own, numbered by
-/// `iteration`; `guide_probability` fixes the guide's share (`None`: the field's learned one,
-/// or the peer's fixed one).
+/// [`combine`](crate::passes::combine)). Training passes draw from random streams of their
+/// own, numbered by `iteration`; `guide_probability` fixes the guide's share (`None`: the
+/// field's learned one, or the peer's fixed one).
 pub fn training_pass<B: Backend>(
     scene: &Scene,
     field: &mut B,
