@@ -2,8 +2,8 @@
 //! which processes one bounce of many paths at once.
 //!
 //! Each lane is exactly the one-vertex call — the same lookup, the same descent, the same bits
-//! out — so a renderer may mix the two forms. The lanes run in parallel on rayon's pool, in
-//! chunks of [`BATCH_CHUNK`]; a call allocates nothing (the caller owns the outputs) and takes
+//! out — so a renderer may mix the two forms. The lanes run in parallel on rayon's pool, at
+//! least [`BATCH_CHUNK`] to a task; a call allocates nothing (the caller owns the outputs) and takes
 //! `&self`, like the one-vertex calls, so several batches may run at once.
 
 use crate::field::GuidingField;
@@ -12,8 +12,8 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::fmt;
 
-/// Lanes one rayon task handles: enough to amortize the task, few enough to spread a bounce
-/// of a small image over every thread.
+/// The fewest lanes one rayon task handles: enough to amortize the task, few enough to spread
+/// a bounce of a small image over every thread.
 pub const BATCH_CHUNK: usize = 1024;
 
 /// Why a batch call refused its slices. Nothing is written then.
@@ -58,6 +58,18 @@ fn lanes(slice: &'static str, lanes: usize, found: usize) -> Result<(), BatchErr
     }
 }
 
+/// Calls `f(i, output)` for every lane `i` of `outputs`, in parallel, at least [`BATCH_CHUNK`]
+/// lanes to a task.
+fn for_each_lane<T: Send>(
+    outputs: impl IndexedParallelIterator<Item = T>,
+    f: impl Fn(usize, T) + Sync + Send,
+) {
+    outputs
+        .with_min_len(BATCH_CHUNK)
+        .enumerate()
+        .for_each(|(i, out)| f(i, out));
+}
+
 impl GuidingField {
     /// [`distribution`](Self::distribution)`(positions[i]).sample(u[i])` for every lane `i`,
     /// or with `normals`, [`at_surface`](crate::DirectionalDistribution::at_surface)`(normals[i])`
@@ -94,21 +106,14 @@ impl GuidingField {
         if let Some(normals) = normals {
             lanes("normals", n, normals.len())?;
         }
-        directions
-            .par_chunks_mut(BATCH_CHUNK)
-            .zip(pdfs.par_chunks_mut(BATCH_CHUNK))
-            .enumerate()
-            .for_each(|(chunk, (directions, pdfs))| {
-                let start = chunk * BATCH_CHUNK;
-                for (k, (d, p)) in directions.iter_mut().zip(pdfs.iter_mut()).enumerate() {
-                    let i = start + k;
-                    let dist = self.distribution(positions[i]);
-                    (*d, *p) = match normals {
-                        Some(normals) => dist.at_surface(normals[i]).sample(u[i]),
-                        None => dist.sample(u[i]),
-                    };
-                }
-            });
+        let lanes = directions.par_iter_mut().zip(pdfs.par_iter_mut());
+        for_each_lane(lanes, |i, (d, p)| {
+            let dist = self.distribution(positions[i]);
+            (*d, *p) = match normals {
+                Some(normals) => dist.at_surface(normals[i]).sample(u[i]),
+                None => dist.sample(u[i]),
+            };
+        });
         Ok(())
     }
 
@@ -132,19 +137,13 @@ impl GuidingField {
         if let Some(normals) = normals {
             lanes("normals", n, normals.len())?;
         }
-        pdfs.par_chunks_mut(BATCH_CHUNK)
-            .enumerate()
-            .for_each(|(chunk, pdfs)| {
-                let start = chunk * BATCH_CHUNK;
-                for (k, p) in pdfs.iter_mut().enumerate() {
-                    let i = start + k;
-                    let dist = self.distribution(positions[i]);
-                    *p = match normals {
-                        Some(normals) => dist.at_surface(normals[i]).pdf(directions[i]),
-                        None => dist.pdf(directions[i]),
-                    };
-                }
-            });
+        for_each_lane(pdfs.par_iter_mut(), |i, p| {
+            let dist = self.distribution(positions[i]);
+            *p = match normals {
+                Some(normals) => dist.at_surface(normals[i]).pdf(directions[i]),
+                None => dist.pdf(directions[i]),
+            };
+        });
         Ok(())
     }
 
@@ -160,14 +159,9 @@ impl GuidingField {
         probabilities: &mut [f32],
     ) -> Result<(), BatchError> {
         lanes("probabilities", positions.len(), probabilities.len())?;
-        probabilities
-            .par_chunks_mut(BATCH_CHUNK)
-            .zip(positions.par_chunks(BATCH_CHUNK))
-            .for_each(|(out, positions)| {
-                for (a, &x) in out.iter_mut().zip(positions) {
-                    *a = self.distribution(x).guide_probability();
-                }
-            });
+        for_each_lane(probabilities.par_iter_mut(), |i, a| {
+            *a = self.distribution(positions[i]).guide_probability();
+        });
         Ok(())
     }
 

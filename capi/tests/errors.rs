@@ -2,6 +2,7 @@
 //! bytes give status codes and messages, never a crash.
 
 use sdguide_c::*;
+use sdguide_lab::rng::Rng;
 use std::ffi::{CStr, CString};
 use std::ptr::{null, null_mut};
 
@@ -696,13 +697,8 @@ fn optional_fields_are_read_only_with_their_flags() {
 #[test]
 fn batch_calls_are_the_one_vertex_calls_and_refuse_bad_lanes() {
     let f = field();
-    let mut rng = 0x2545_f491_4f6c_dd1du64;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        (rng >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut rng = Rng::new(31);
+    let mut next = || rng.next_f32();
     // SAFETY: valid pointers throughout, arrays of the lengths passed.
     unsafe {
         // Train a little, so the distributions are not all uniform.

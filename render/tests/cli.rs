@@ -16,6 +16,15 @@ fn render(out: &Path, args: &[&str]) -> std::process::Output {
         .expect("the render binary runs")
 }
 
+/// The methods of a report's table rows, in order.
+fn method_rows(report: &str) -> Vec<&str> {
+    report
+        .lines()
+        .filter(|l| l.starts_with("| unguided") || l.starts_with("| guided"))
+        .map(|l| l.split('|').nth(1).unwrap().trim())
+        .collect()
+}
+
 #[test]
 fn several_seeds_write_every_image_and_one_summary() {
     let out = std::env::temp_dir().join(format!("sdguide-cli-seeds-{}", std::process::id()));
@@ -64,11 +73,7 @@ fn without_roulette_every_method_runs_beside_its_unguided_baseline() {
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     // Unguided with classic roulette stays the first row, the baseline of the ratios.
-    let rows: Vec<&str> = report
-        .lines()
-        .filter(|l| l.starts_with("| unguided") || l.starts_with("| guided"))
-        .map(|l| l.split('|').nth(1).unwrap().trim())
-        .collect();
+    let rows = method_rows(&report);
     assert_eq!(
         rows,
         ["unguided", "unguided-no-rr", "guided-l2-no-rr"],
@@ -94,11 +99,7 @@ fn without_rule_and_roulette_the_recommended_comparison_runs() {
         String::from_utf8_lossy(&run.stderr)
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    let rows: Vec<&str> = report
-        .lines()
-        .filter(|l| l.starts_with("| unguided") || l.starts_with("| guided"))
-        .map(|l| l.split('|').nth(1).unwrap().trim())
-        .collect();
+    let rows = method_rows(&report);
     assert_eq!(
         rows,
         ["unguided", "unguided-ears", "guided-l2-ears"],
