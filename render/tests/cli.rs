@@ -93,18 +93,11 @@ fn without_roulette_every_method_runs_beside_its_unguided_baseline() {
 fn without_rule_and_roulette_the_recommended_comparison_runs() {
     let out = std::env::temp_dir().join(format!("sdguide-cli-default-{}", std::process::id()));
     let run = render(&out, &["--scene", "door"]);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    let rows = method_rows(&report);
-    assert_eq!(
-        rows,
-        ["unguided", "unguided-ears", "guided-l2-ears"],
-        "{report}"
-    );
+    let expected = ["unguided", "unguided-ears", "guided-l2-ears"];
+    assert_eq!(method_rows(&report), expected, "{report}");
     std::fs::remove_dir_all(&out).unwrap();
 }
 
