@@ -139,7 +139,9 @@ impl GuidingField {
             .inspect_err(|&reason| self.rejected.count(reason))
     }
 
-    /// Records every sample of a batch (see [`record`](Self::record)).
+    /// Records every sample of a batch on the calling thread, in order (see
+    /// [`record`](Self::record)); [`record_batch`](Self::record_batch) records them in
+    /// parallel and counts the rejected ones.
     pub fn record_all(&self, samples: &[Sample]) {
         for s in samples {
             self.record(s);

@@ -268,7 +268,7 @@ fn peer(
     schedule: &Schedule,
     cosine_product: bool,
     progress: Progress<'_>,
-) -> Result<Rendered, String> {
+) -> Result<Finished, String> {
     let threads = rayon::current_num_threads();
     let mut guide = crate::openpgl::Guide::new(field_bounds(scene), cosine_product, threads)?;
     let trained = schedule.train(scene, &mut guide, progress);
@@ -277,12 +277,12 @@ fn peer(
 
 /// Without the `openpgl` feature there is no peer to render with.
 #[cfg(not(feature = "openpgl"))]
-fn peer(_: &Scene, _: &Schedule, _: bool, _: Progress<'_>) -> Result<Rendered, String> {
+fn peer(_: &Scene, _: &Schedule, _: bool, _: Progress<'_>) -> Result<Finished, String> {
     Err("Open PGL needs the demo built with `--features openpgl`".into())
 }
 
 /// What a method's render produced, before its field is handed back.
-struct Rendered {
+struct Finished {
     image: Image,
     combined: Image,
     spp: u32,
@@ -406,7 +406,7 @@ impl Schedule {
         backend: Option<&B>,
         trained: Trained,
         progress: Progress<'_>,
-    ) -> Rendered {
+    ) -> Finished {
         let Trained {
             spp: training_spp,
             time: training_time,
@@ -458,7 +458,7 @@ impl Schedule {
         let final_image = image.mean();
         passes.push(image);
         let combined = combine(&passes).unwrap_or_else(|| final_image.clone());
-        Rendered {
+        Finished {
             image: final_image,
             combined,
             spp,
