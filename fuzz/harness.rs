@@ -7,8 +7,8 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::{
-    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
-    SpatialFilter,
+    Aabb, Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement,
+    Sample, SpatialFilter,
 };
 
 /// At most this many operations, refines and save–load round trips per input, and a memory
@@ -52,7 +52,7 @@ pub fn field_ops(data: &[u8]) {
     let (mut refines, mut round_trips) = (0, 0);
     for _ in 0..MAX_OPS {
         let Some(op) = b.u8() else { break };
-        match op % 6 {
+        match op % 7 {
             // Record a sample, possibly many times.
             0 | 1 => {
                 let (Some(p), Some(d), Some(v), Some(pdf), Some(n)) =
@@ -62,13 +62,15 @@ pub fn field_ops(data: &[u8]) {
                 };
                 // The high bit of `n` adds mixture terms (integrand v, BSDF pdf `pdf`, guide pdf
                 // `v`): arbitrary values for the guide-selection sums. The next bit adds a second
-                // moment (`pdf`, any value, to the second-moment sums).
+                // moment (`pdf`, any value, to the second-moment sums), the next one a normal
+                // (the direction, any vector: the tally of normals).
                 let mut sample = Sample {
                     position: p,
                     direction: d,
                     value: v,
                     pdf,
                     second_moment: (n & 0x40 != 0).then_some(pdf),
+                    normal: (n & 0x20 != 0).then_some(d),
                     ..Sample::default()
                 };
                 if n & 0x80 != 0 {
@@ -111,6 +113,17 @@ pub fn field_ops(data: &[u8]) {
                     "merge adds the counts"
                 );
                 field = loaded;
+            }
+            // A continuation, with arbitrary value and cost (the continuation sums).
+            5 => {
+                let (Some(position), Some(value), Some(cost)) = (b.vec3(), b.f32(), b.f32()) else {
+                    break;
+                };
+                field.record_continuation(&Continuation {
+                    position,
+                    value,
+                    cost,
+                });
             }
             _ => {
                 let s = field.stats();

@@ -69,8 +69,8 @@ pub struct GuidingConfig {
     /// Memory budget in bytes (default 1 GiB): a spatial split that would take the field's
     /// footprint above it is refused, and each directional tree is held to its share of what
     /// the spatial tree and the trees' fixed parts (about 3 KB each) leave of it
-    /// (`left / (trees · 336 bytes)` interior nodes, 336 bytes bounding what one node costs,
-    /// 528 under [`DirectionalFilter::DeferredBox`]); refusals are counted. The
+    /// (`left / (trees · 456 bytes)` interior nodes, 456 bytes bounding what one node costs,
+    /// 840 under [`DirectionalFilter::DeferredBox`]); refusals are counted. The
     /// products stored for frequent surface normals (see [`Sample::normal`](crate::Sample::normal))
     /// count too, and are dropped, largest first, where they would take the footprint above
     /// it. Must be ≥ 64 KiB.

@@ -8,16 +8,17 @@
 use crate::bounds::Aabb;
 use crate::config::{ConfigError, GuidingConfig};
 use crate::distribution::DirectionalDistribution;
+use crate::exact::MAX_TERM;
 use crate::filter::{SpatialFilter, hash_jitter};
 use crate::moments::{Moments, weights};
-use crate::quadtree::{DirectionalCell, bytes_per_node, tallies};
+use crate::quadtree::{DirectionalCell, bytes_per_node, tally_priority};
 use crate::region::{RefineOutcome, Region, StepParams};
 use crate::rule::{LeafRule, mixture_value};
 use crate::sample::{RejectReason, Sample};
 use crate::spatial::SpatialTree;
 use crate::sphere::INV_SPHERE_AREA;
 use crate::splitting::{Continuation, ContinuationEstimate};
-use crate::stats::{FieldStats, RejectCounters, Rejections};
+use crate::stats::{EventCount, FieldStats, RejectCounters, Rejections};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -57,6 +58,8 @@ pub struct GuidingField {
     /// Rejections in the current iteration (folded into `rejected_before` by `refine`).
     pub(crate) rejected: RejectCounters,
     pub(crate) rejected_before: Rejections,
+    /// Samples and continuations whose weights were clamped to the exact sums' range.
+    pub(crate) clamped: EventCount,
     pub(crate) recorded_before: u64,
     pub(crate) spatial_refused: u64,
     pub(crate) directional_refused: u64,
@@ -98,6 +101,7 @@ impl GuidingField {
             iteration: 0,
             rejected: RejectCounters::default(),
             rejected_before: Rejections::default(),
+            clamped: EventCount::default(),
             recorded_before: 0,
             spatial_refused: 0,
             directional_refused: 0,
@@ -164,18 +168,19 @@ impl GuidingField {
             }
         };
         // One sample in eight tallies its normal (see `quadtree::surfaces`).
-        if let Some(n) = sample
-            .normal
-            .filter(|_| tallies(p, sample.direction))
-            .and_then(crate::sphere::normalize)
-        {
-            self.regions[home].record_normal(n);
+        let tallied = sample.normal.and_then(|n| {
+            let priority = tally_priority(p, sample.direction)?;
+            Some((crate::sphere::normalize(n)?, priority))
+        });
+        if let Some((n, priority)) = tallied {
+            self.regions[home].record_normal(n, priority);
         }
         let mut value = sample.value;
+        let mut clamped = false;
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
             let region = &self.regions[home];
-            region.record_selection(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
+            clamped = region.record_selection(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
             if self.config.rule == LeafRule::L2Mixture {
                 // The region's own pdf is the one the direction was guided with.
                 let p_g = f64::from(region.square_pdf(square)) * f64::from(INV_SPHERE_AREA);
@@ -185,6 +190,9 @@ impl GuidingField {
         // The second moment without the roulette's added variance, where the sample has one.
         let (w1, w2) = weights(value, sample.pdf);
         let w = (w1, w2 * sample.square_ratio());
+        if clamped || w.0.max(w.1) > MAX_TERM {
+            self.clamped.count();
+        }
         match self.config.spatial_filter {
             SpatialFilter::Nearest => self.insert_directional(home, square, w, true),
             SpatialFilter::Stochastic => {
@@ -253,7 +261,10 @@ impl GuidingField {
                 }
             })
             .map(|()| {
-                self.regions[self.spatial.leaf_at(c.position)].record_continuation(c.value, c.cost);
+                let region = &self.regions[self.spatial.leaf_at(c.position)];
+                if region.record_continuation(c.value, c.cost) {
+                    self.clamped.count();
+                }
             })
             .inspect_err(|&reason| self.rejected.count(reason))
     }
@@ -297,6 +308,7 @@ impl GuidingField {
         let recorded = counts.iter().fold(0u64, |a, &b| a.saturating_add(b));
         self.recorded_before = self.recorded_before.saturating_add(recorded);
         self.rejected_before = self.rejected_before.plus(&self.rejected.take());
+        self.clamped.end_iteration();
         self.directional_refused += outcomes.iter().map(|o| o.refused).sum::<u64>();
         self.fit_surface_products();
 
@@ -347,6 +359,7 @@ impl GuidingField {
             spatial_leaves: leaves.len() as u64,
             spatial_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
             rejected: self.rejected_before.plus(&self.rejected.get()),
+            clamped_samples: self.clamped.total(),
             spatial_splits_refused: self.spatial_refused,
             directional_splits_refused: self.directional_refused,
             bytes: self.bytes(),

@@ -74,7 +74,7 @@
 //! unguided's with the same roulette) from 0.44 to 0.57 on `door` and from 0.30 to 0.43 on
 //! `uplight`, where with classic roulette the error at equal time fell.
 
-use crate::moments::AtomicF64;
+use crate::exact::{AtomicSum, MAX_TERM, Signed, Sum};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The smallest guide probability the selection learns.
@@ -104,57 +104,59 @@ pub(crate) struct GuideSelection {
     pub(crate) probability: f32,
     /// The learned `a`, which the Newton steps move (also while the guide is off).
     pub(crate) learned: f32,
-    /// `Σ f²·d/(q_a²·q0)`, an estimate of `−N·M'(a)`.
-    gradient: AtomicF64,
+    /// `Σ f²·d/(q_a²·q0)`, an estimate of `−N·M'(a)` (signed).
+    gradient: AtomicSum,
     /// `Σ f²·d²/(q_a³·q0)`, an estimate of `N·M''(a)/2`.
-    curvature: AtomicF64,
+    curvature: AtomicSum,
     count: AtomicU64,
     /// `Σ f²/(q_a·q0)`, an estimate of `N·M(a)`.
-    guided: AtomicF64,
+    guided: AtomicSum,
     /// `Σ f²/(p_b·q0)` over the samples with `p_b > 0`, an estimate of `N·M(0)`.
-    bsdf: AtomicF64,
+    bsdf: AtomicSum,
     /// `Σ f/q0`, an estimate of `N·∫f`.
-    first: AtomicF64,
+    first: AtomicSum,
     /// Samples with `f ≠ 0` where `p_b = 0`: light BSDF sampling alone would never find.
     uncovered: AtomicU64,
 }
 
-/// The sums a leaf recorded, as caches and merges see them.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// The sums a leaf recorded, as caches and merges see them (exact: see [`crate::exact`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(crate) struct SelectionSums {
-    pub gradient: f64,
-    pub curvature: f64,
+    pub gradient: Signed,
+    pub curvature: Sum,
     pub count: u64,
     /// `Σ f²/(q_a·q0)`.
-    pub guided: f64,
+    pub guided: Sum,
     /// `Σ f²/(p_b·q0)`.
-    pub bsdf: f64,
+    pub bsdf: Sum,
     /// `Σ f/q0`.
-    pub first: f64,
+    pub first: Signed,
     pub uncovered: u64,
 }
 
 impl SelectionSums {
-    /// The sums in range: finite, the second moments and the curvature non-negative, and none
-    /// without samples.
+    /// The sums in range: none without samples.
     pub(crate) fn valid(&self) -> bool {
-        let finite = [
-            self.gradient,
-            self.curvature,
-            self.guided,
-            self.bsdf,
-            self.first,
-        ]
-        .iter()
-        .all(|x| x.is_finite());
-        let signs = self.curvature >= 0.0 && self.guided >= 0.0 && self.bsdf >= 0.0;
-        let empty = self.gradient == 0.0
-            && self.curvature == 0.0
-            && self.guided == 0.0
-            && self.bsdf == 0.0
-            && self.first == 0.0
+        let empty = self.gradient.is_zero()
+            && self.curvature.is_zero()
+            && self.guided.is_zero()
+            && self.bsdf.is_zero()
+            && self.first.is_zero()
             && self.uncovered == 0;
-        finite && signs && (self.count > 0 || empty)
+        self.count > 0 || empty
+    }
+
+    /// Both leaves' sums (merging workers): exact, in any order.
+    pub(crate) fn plus(&self, s: &SelectionSums) -> SelectionSums {
+        SelectionSums {
+            gradient: self.gradient.plus(s.gradient),
+            curvature: self.curvature.plus(s.curvature),
+            count: self.count.saturating_add(s.count),
+            guided: self.guided.plus(s.guided),
+            bsdf: self.bsdf.plus(s.bsdf),
+            first: self.first.plus(s.first),
+            uncovered: self.uncovered.saturating_add(s.uncovered),
+        }
     }
 
     /// Whether sampling the guide does not pay for its cost: whether the variance of the
@@ -169,8 +171,8 @@ impl SelectionSums {
             return Some(false);
         }
         let n = self.count as f64;
-        let mean = self.first / n;
-        let variance = |second: f64| (second / n - mean * mean).max(0.0);
+        let mean = self.first.value() / n;
+        let variance = |second: Sum| (second.value() / n - mean * mean).max(0.0);
         Some(variance(self.guided) * (1.0 + f64::from(cost)) >= variance(self.bsdf))
     }
 }
@@ -193,12 +195,12 @@ impl GuideSelection {
         Self {
             probability: if off { 0.0 } else { learned },
             learned,
-            gradient: AtomicF64::new(s.gradient),
-            curvature: AtomicF64::new(s.curvature),
+            gradient: AtomicSum::new(s.gradient.units()),
+            curvature: AtomicSum::new(s.curvature.units()),
             count: AtomicU64::new(s.count),
-            guided: AtomicF64::new(s.guided),
-            bsdf: AtomicF64::new(s.bsdf),
-            first: AtomicF64::new(s.first),
+            guided: AtomicSum::new(s.guided.units()),
+            bsdf: AtomicSum::new(s.bsdf.units()),
+            first: AtomicSum::new(s.first.units()),
             uncovered: AtomicU64::new(s.uncovered),
         }
     }
@@ -210,45 +212,54 @@ impl GuideSelection {
 
     pub(crate) fn sums(&self) -> SelectionSums {
         SelectionSums {
-            gradient: self.gradient.get(),
-            curvature: self.curvature.get(),
+            gradient: self.gradient.signed(),
+            curvature: self.curvature.sum(),
             count: self.count.load(Ordering::Relaxed),
-            guided: self.guided.get(),
-            bsdf: self.bsdf.get(),
-            first: self.first.get(),
+            guided: self.guided.sum(),
+            bsdf: self.bsdf.sum(),
+            first: self.first.signed(),
             uncovered: self.uncovered.load(Ordering::Relaxed),
         }
     }
 
     /// Adds one sample: integrand `f`, the two techniques' pdfs, and the density `q0` it was
     /// drawn with (all checked finite, `q0 > 0`, by [`Sample::check`](crate::Sample::check)).
-    /// Terms too large for `f64` saturate.
+    /// Returns whether a term was clamped to the sums' range (see [`crate::exact`]).
     #[inline]
-    pub(crate) fn record(&self, f: f32, bsdf_pdf: f32, guide_pdf: f32, q0: f32) {
+    pub(crate) fn record(&self, f: f32, bsdf_pdf: f32, guide_pdf: f32, q0: f32) -> bool {
         let a = f64::from(self.learned);
         let (pb, pg) = (f64::from(bsdf_pdf), f64::from(guide_pdf));
         let d = pg - pb;
         let q = a * pg + (1.0 - a) * pb;
         let (f, q0) = (f64::from(f), f64::from(q0));
         let f2 = f * f;
+        let mut largest = 0.0f64;
         if f2 > 0.0 && q > 0.0 {
             let weight = f2 / (q * q0);
-            self.guided.add(weight.min(f64::MAX));
+            self.guided.add(weight);
+            largest = weight;
             if d != 0.0 {
                 let g = weight * d / q;
-                self.gradient.add(g.clamp(-f64::MAX, f64::MAX));
-                self.curvature.add((g * d / q).min(f64::MAX));
+                let c = g * d / q;
+                self.gradient.add_signed(g);
+                self.curvature.add(c);
+                largest = largest.max(g.abs()).max(c);
             }
         }
         if f2 > 0.0 {
             if pb > 0.0 {
-                self.bsdf.add((f2 / (pb * q0)).min(f64::MAX));
+                let b = f2 / (pb * q0);
+                self.bsdf.add(b);
+                largest = largest.max(b);
             } else {
                 self.uncovered.fetch_add(1, Ordering::Relaxed);
             }
-            self.first.add((f / q0).clamp(-f64::MAX, f64::MAX));
+            self.first.add_signed(f / q0);
+            largest = largest.max((f / q0).abs());
         }
         self.count.fetch_add(1, Ordering::Relaxed);
+        // NaN (an infinite weight's product) counts as clamped too.
+        largest.is_nan() || largest > MAX_TERM
     }
 
     /// Ends an iteration: one Newton step, `a ← a + gradient / (2·curvature)`, clamped to
@@ -258,8 +269,9 @@ impl GuideSelection {
     pub(crate) fn step(&mut self, max: f32, cost: Option<f32>) {
         let s = self.sums();
         let mut learned = self.learned;
-        if s.count >= MIN_SELECTION_SAMPLES && s.curvature > 0.0 && s.curvature.is_finite() {
-            let next = f64::from(learned) + s.gradient / (2.0 * s.curvature);
+        let curvature = s.curvature.value();
+        if s.count >= MIN_SELECTION_SAMPLES && curvature > 0.0 {
+            let next = f64::from(learned) + s.gradient.value() / (2.0 * curvature);
             if next.is_finite() {
                 learned = next as f32;
             }
@@ -271,23 +283,9 @@ impl GuideSelection {
         *self = Self::from_parts(learned, off, SelectionSums::default());
     }
 
-    /// Adds another leaf's sums (merging workers), saturating.
+    /// Adds another leaf's sums (merging workers), exactly.
     pub(crate) fn add_sums(&mut self, s: SelectionSums) {
-        let mine = self.sums();
-        let add = |a: f64, b: f64| (a + b).clamp(-f64::MAX, f64::MAX);
-        *self = Self::from_parts(
-            self.learned,
-            self.off(),
-            SelectionSums {
-                gradient: add(mine.gradient, s.gradient),
-                curvature: add(mine.curvature, s.curvature),
-                count: mine.count.saturating_add(s.count),
-                guided: add(mine.guided, s.guided),
-                bsdf: add(mine.bsdf, s.bsdf),
-                first: add(mine.first, s.first),
-                uncovered: mine.uncovered.saturating_add(s.uncovered),
-            },
-        );
+        *self = Self::from_parts(self.learned, self.off(), self.sums().plus(&s));
     }
 }
 

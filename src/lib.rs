@@ -25,13 +25,23 @@
 //!
 //!   save     GuidingField::save / save_to_path     field ─► versioned, checksummed cache bytes
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
-//!   merge    GuidingField::merge                   worker fields ─► summed statistics ─► refine
+//!   merge    GuidingField::merge                   worker fields ─► summed statistics (exact) ─► refine
 //!
 //!   roulette and splitting, beside the guide:
 //!   record   record_continuation(c)                 a traced continuation's value and cost ─► the leaf's sums
 //!   refine                                          sums ─► the leaf's continuation estimate
 //!   query    continuation(x) ─► Splitting::factor   how many continuations to trace from a vertex
 //! ```
+//!
+//! ## Determinism
+//!
+//! Every statistic a field keeps is an exact fixed-point sum (`exact`: integers in units of
+//! 2⁻⁴⁰, a term clamped at 2⁴⁸ and counted in [`FieldStats::clamped_samples`]), and everything
+//! `refine` decides follows from the sums alone. So the same samples give the same field —
+//! the same [`GuidingField::to_bytes`] — whatever the number of threads that recorded them,
+//! the order they arrived in, or how a farm split them over workers and [merged](GuidingField::merge)
+//! the workers' fields, in any order. A render whose samples depend only on its seed and the
+//! field trains the same field every time.
 //!
 //! ```
 //! use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
@@ -71,8 +81,9 @@
 //!   to), `splat` (the directional box filter), `refine` (from the iteration's recording tree
 //!   to the next sampling and recording trees), `sampling` (what `sample` and `pdf` descend),
 //!   `horizon` and `surfaces` (the product with the clamped cosine).
-//! - `moments` ([`Moments`]: `Σ v/p`, `Σ v²/p`, `n`), `rule` ([`LeafRule`]: how moments become
-//!   leaf masses), `refinement` ([`Refinement`]: which directional cells to split).
+//! - `moments` ([`Moments`]: `Σ v/p`, `Σ v²/p`, `n`), kept as `exact` sums; `rule`
+//!   ([`LeafRule`]: how moments become leaf masses), `refinement` ([`Refinement`]: which
+//!   directional cells to split).
 //! - `guide_probability`: the per-region probability of sampling the guide rather than the
 //!   BSDF, and whether the guide pays for its cost there.
 //! - `splitting`: efficiency-aware Russian roulette and splitting — [`Continuation`],
@@ -98,6 +109,7 @@ mod bounds;
 mod cache;
 mod config;
 mod distribution;
+mod exact;
 mod field;
 mod filter;
 mod guide_probability;

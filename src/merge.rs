@@ -49,10 +49,9 @@ impl GuidingField {
     /// Adds the statistics `other` recorded in the current iteration — every cell's sums and
     /// counts, the guide-selection sums, the continuation sums, and the rejection counts — to this field's. Both
     /// fields must have started the iteration from the same state (typically: the same cache,
-    /// loaded on two workers). Under [`DirectionalFilter::DeferredBox`] both fields' pending
-    /// sums are spread first (in `other` too, which changes nothing it would report or save).
-    ///
-    /// [`DirectionalFilter::DeferredBox`]: crate::DirectionalFilter::DeferredBox
+    /// loaded on two workers). The sums are exact integers, so merging is exact, commutative
+    /// and associative: workers that split an iteration's samples and are merged in any order
+    /// give the bytes one field recording every sample gives.
     ///
     /// ```
     /// use sdguide::{Aabb, GuidingConfig, GuidingField, Sample};
@@ -97,6 +96,7 @@ impl GuidingField {
             a.add(b);
         }
         self.rejected.add(&other.rejected.get());
+        self.clamped.add(&other.clamped);
         Ok(())
     }
 }

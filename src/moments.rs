@@ -2,10 +2,11 @@
 //!
 //! These three sums are all the field learns from. [`Moments`] is a plain snapshot;
 //! [`AtomicMoments`] is what a directional leaf holds while render threads record into it:
-//! lock-free adds, so any number of threads can record at once. The sums are `f64` — inputs are
-//! `f32`, so `v²/p` of any finite input is finite in `f64`, and long iterations do not stall the
-//! way an `f32` sum does once it passes 2²⁴ times the typical increment.
+//! lock-free adds, so any number of threads can record at once. The sums are exact fixed-point
+//! integers ([`crate::exact`]): the same bits whatever order the samples arrive in; they are read
+//! as `f64`, where `v²/p` of any finite `f32` input is finite.
 
+use crate::exact::{AtomicSum, Sum};
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -44,67 +45,92 @@ pub(crate) fn weights(v: f32, p: f32) -> (f64, f64) {
     (w1, w1 * f64::from(v))
 }
 
-/// An `f64` that threads can add to concurrently (a compare-and-swap loop on its bits).
-#[derive(Debug, Default)]
-pub(crate) struct AtomicF64(AtomicU64);
+/// A cell's sums as they are kept: exact (see [`crate::exact`]), for caches and merges.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct ExactMoments {
+    pub(crate) sum: Sum,
+    pub(crate) sum_sq: Sum,
+    pub(crate) count: u64,
+}
 
-impl AtomicF64 {
-    pub(crate) fn new(x: f64) -> Self {
-        Self(AtomicU64::new(x.to_bits()))
-    }
-
-    #[inline]
-    pub(crate) fn add(&self, x: f64) {
-        // Relaxed suffices: the sums are only read after `refine` has taken `&mut self`, which
-        // synchronizes with every recording thread through whatever joined them.
-        let mut old = self.0.load(Ordering::Relaxed);
-        loop {
-            let new = (f64::from_bits(old) + x).to_bits();
-            match self
-                .0
-                .compare_exchange_weak(old, new, Ordering::Relaxed, Ordering::Relaxed)
-            {
-                Ok(_) => return,
-                Err(current) => old = current,
-            }
+impl ExactMoments {
+    /// The sums as floats.
+    pub(crate) fn moments(&self) -> Moments {
+        Moments {
+            sum: self.sum.value(),
+            sum_sq: self.sum_sq.value(),
+            count: self.count,
         }
-    }
-
-    pub(crate) fn get(&self) -> f64 {
-        f64::from_bits(self.0.load(Ordering::Relaxed))
-    }
-
-    /// The value's bits, by a plain load.
-    #[inline]
-    fn bits(&self) -> u64 {
-        self.0.load(Ordering::Relaxed)
-    }
-
-    /// Reads the value and leaves zero in its place, in one atomic step: an add racing with it
-    /// lands either in what is returned or in what stays.
-    pub(crate) fn take(&self) -> f64 {
-        f64::from_bits(self.0.swap(0.0f64.to_bits(), Ordering::Relaxed))
-    }
-
-    /// [`add`](Self::add) with exclusive access: a plain add, no atomic instruction.
-    #[inline]
-    pub(crate) fn add_mut(&mut self, x: f64) {
-        let bits = self.0.get_mut();
-        *bits = (f64::from_bits(*bits) + x).to_bits();
-    }
-
-    /// [`take`](Self::take) with exclusive access.
-    #[inline]
-    pub(crate) fn take_mut(&mut self) -> f64 {
-        f64::from_bits(std::mem::replace(self.0.get_mut(), 0.0f64.to_bits()))
     }
 }
 
-/// The moments of one directional leaf, updated in place by recording threads.
+/// A directional leaf's `(Σ v/p, Σ v²/p)`, updated in place by recording threads: 32 bytes,
+/// aligned so that a box filter's share writes one cache line. The leaf's count lives with its
+/// quadrants' ([`AtomicQuadrants`]), which `record` writes for the sample's own leaf only.
+#[derive(Debug, Default)]
+#[repr(align(32))]
+pub(crate) struct AtomicSums {
+    sum: AtomicSum,
+    sum_sq: AtomicSum,
+}
+
+impl AtomicSums {
+    /// Adds weights `(v/p, v²/p)`.
+    #[inline]
+    pub(crate) fn add_sums(&self, (w1, w2): (f64, f64)) {
+        self.sum.add(w1);
+        self.sum_sq.add(w2);
+    }
+
+    /// [`add_sums`](Self::add_sums) with exclusive access (no atomic instructions).
+    #[inline]
+    pub(crate) fn add_sums_mut(&mut self, (w1, w2): (f64, f64)) {
+        self.sum.add_mut(w1);
+        self.sum_sq.add_mut(w2);
+    }
+
+    /// Loads a word by a plain load, which brings the sums' line in without waiting for the
+    /// others a sample touches (see `quadtree::splat::Shares`); the result means nothing.
+    #[inline]
+    pub(crate) fn touch(&self) -> u64 {
+        self.sum.touch()
+    }
+
+    /// The exact `(Σ v/p, Σ v²/p)`.
+    pub(crate) fn exact(&self) -> (Sum, Sum) {
+        (self.sum.sum(), self.sum_sq.sum())
+    }
+
+    pub(crate) fn from_exact((sum, sum_sq): (Sum, Sum)) -> Self {
+        Self {
+            sum: AtomicSum::new(sum.units()),
+            sum_sq: AtomicSum::new(sum_sq.units()),
+        }
+    }
+
+    /// Adds another leaf's sums (merging workers), saturating.
+    pub(crate) fn add_exact(&mut self, (s1, s2): (Sum, Sum)) {
+        let (a, b) = self.exact();
+        *self = Self::from_exact((a.plus(s1), b.plus(s2)));
+    }
+
+    /// The sums, leaving zeros behind, with exclusive access.
+    pub(crate) fn take_mut(&mut self) -> (Sum, Sum) {
+        (self.sum.take_mut(), self.sum_sq.take_mut())
+    }
+}
+
+impl Clone for AtomicSums {
+    fn clone(&self) -> Self {
+        Self::from_exact(self.exact())
+    }
+}
+
+/// The moments of one cell with their count, updated in place by recording threads (the
+/// technique sums of [`crate::TechniqueProbabilities`]).
 #[derive(Debug, Default)]
 pub(crate) struct AtomicMoments {
-    sum: AtomicF64,
-    sum_sq: AtomicF64,
+    sums: AtomicSums,
     count: AtomicU64,
 }
 
@@ -112,124 +138,97 @@ impl AtomicMoments {
     /// Adds one sample with precomputed weights `(v/p, v²/p)`.
     #[inline]
     pub(crate) fn add(&self, weights: (f64, f64)) {
-        self.add_sums(weights);
-        self.add_count();
-    }
-
-    /// Adds weights without counting a sample (a filter's share of a sample counted elsewhere).
-    #[inline]
-    pub(crate) fn add_sums(&self, (w1, w2): (f64, f64)) {
-        // Skipping the float adds for zero values keeps dark cells cheap.
-        if w1 != 0.0 {
-            self.sum.add(w1);
-            self.sum_sq.add(w2);
-        }
-    }
-
-    /// [`add_sums`](Self::add_sums) with exclusive access (no atomic instructions).
-    #[inline]
-    pub(crate) fn add_sums_mut(&mut self, (w1, w2): (f64, f64)) {
-        if w1 != 0.0 {
-            self.sum.add_mut(w1);
-            self.sum_sq.add_mut(w2);
-        }
-    }
-
-    /// Loads the first and last words by plain loads, which bring the cell's cache lines in
-    /// without waiting for each other (see `quadtree::splat::Shares`); the result means nothing.
-    #[inline]
-    pub(crate) fn touch(&self) -> u64 {
-        self.sum.bits() ^ self.count.load(Ordering::Relaxed)
-    }
-
-    /// Counts one sample.
-    #[inline]
-    pub(crate) fn add_count(&self) {
+        self.sums.add_sums(weights);
         self.count.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Adds another cell's sums (merging workers' statistics), saturating: the count at
-    /// `u64::MAX` and the sums at `f64::MAX`, so a merged field always saves a loadable cache.
-    pub(crate) fn add_moments(&mut self, m: Moments) {
-        let mine = self.get();
-        *self = Self::from_moments(Moments {
-            sum: (mine.sum + m.sum).min(f64::MAX),
-            sum_sq: (mine.sum_sq + m.sum_sq).min(f64::MAX),
-            count: mine.count.saturating_add(m.count),
-        });
-    }
-
-    /// An accumulator holding `m` (loading a cache).
-    pub(crate) fn from_moments(m: Moments) -> Self {
-        Self {
-            sum: AtomicF64::new(m.sum),
-            sum_sq: AtomicF64::new(m.sum_sq),
-            count: AtomicU64::new(m.count),
-        }
-    }
-
-    pub(crate) fn get(&self) -> Moments {
-        Moments {
-            sum: self.sum.get(),
-            sum_sq: self.sum_sq.get(),
+    /// The exact sums.
+    pub(crate) fn exact(&self) -> ExactMoments {
+        let (sum, sum_sq) = self.sums.exact();
+        ExactMoments {
+            sum,
+            sum_sq,
             count: self.count.load(Ordering::Relaxed),
         }
     }
+
+    /// The sums as floats.
+    pub(crate) fn get(&self) -> Moments {
+        self.exact().moments()
+    }
 }
 
-impl Clone for AtomicMoments {
-    fn clone(&self) -> Self {
-        Self::from_moments(self.get())
-    }
+/// One quadrant of a directional leaf: `Σ v²/p` and the count of the samples that landed in it.
+#[derive(Debug, Default)]
+struct AtomicQuadrant {
+    sum_sq: AtomicSum,
+    count: AtomicU64,
 }
 
 /// Second-moment sums one level below a directional leaf: `Σ v²/p` and the count of the
 /// samples that landed in each of its four quadrants. They are what refinement by variance gain
 /// needs to estimate how much splitting the leaf would lower the optimal variance (see
-/// [`crate::refinement`]). Only a sample's own leaf records them, unfiltered, so the four
-/// quadrants of a leaf are always compared on the same samples.
+/// [`crate::refinement`]), and their counts add up to the leaf's. Only a sample's own leaf
+/// records them, unfiltered, so the four quadrants of a leaf are always compared on the same
+/// samples. A quadrant's sum and count are adjacent: a sample writes one place.
 #[derive(Debug, Default)]
-pub(crate) struct AtomicQuadrants {
-    sum_sq: [AtomicF64; 4],
-    count: [AtomicU64; 4],
-}
+pub(crate) struct AtomicQuadrants([AtomicQuadrant; 4]);
 
 /// A snapshot of [`AtomicQuadrants`]: per quadrant `q = ix + 2·iy`, `(Σ v²/p, n)`.
 pub(crate) type Quadrants = [(f64, u64); 4];
 
+/// [`Quadrants`] as kept, exact.
+pub(crate) type ExactQuadrants = [(Sum, u64); 4];
+
 impl AtomicQuadrants {
-    /// Counts one sample of second-moment weight `w2` in quadrant `q`.
+    /// Counts one sample of second-moment weight `w2` in quadrant `q` (and so in the leaf).
     #[inline]
     pub(crate) fn add(&self, q: usize, w2: f64) {
-        if w2 != 0.0 {
-            self.sum_sq[q].add(w2);
-        }
-        self.count[q].fetch_add(1, Ordering::Relaxed);
+        self.0[q].sum_sq.add(w2);
+        self.0[q].count.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// [`AtomicMoments::touch`] for quadrant `q`'s words.
+    /// [`AtomicSums::touch`] for quadrant `q`'s words.
     #[inline]
     pub(crate) fn touch(&self, q: usize) -> u64 {
-        self.sum_sq[q].bits() ^ self.count[q].load(Ordering::Relaxed)
+        self.0[q].sum_sq.touch() ^ self.0[q].count.load(Ordering::Relaxed)
     }
 
+    /// The leaf's count: its quadrants' (saturating: counts merged from many workers may be
+    /// arbitrarily large).
+    pub(crate) fn count(&self) -> u64 {
+        self.0
+            .iter()
+            .fold(0, |n, q| n.saturating_add(q.count.load(Ordering::Relaxed)))
+    }
+
+    /// The sums as floats.
     pub(crate) fn get(&self) -> Quadrants {
-        std::array::from_fn(|q| (self.sum_sq[q].get(), self.count[q].load(Ordering::Relaxed)))
+        self.exact().map(|(s, n)| (s.value(), n))
     }
 
-    pub(crate) fn from_quadrants(q: Quadrants) -> Self {
-        Self {
-            sum_sq: q.map(|(s, _)| AtomicF64::new(s)),
-            count: q.map(|(_, n)| AtomicU64::new(n)),
-        }
-    }
-
-    /// Adds another leaf's quadrant sums (saturating, like [`AtomicMoments::add_moments`]).
-    pub(crate) fn add_quadrants(&mut self, other: Quadrants) {
-        let mine = self.get();
-        *self = Self::from_quadrants(std::array::from_fn(|q| {
+    pub(crate) fn exact(&self) -> ExactQuadrants {
+        std::array::from_fn(|q| {
             (
-                (mine[q].0 + other[q].0).min(f64::MAX),
+                self.0[q].sum_sq.sum(),
+                self.0[q].count.load(Ordering::Relaxed),
+            )
+        })
+    }
+
+    pub(crate) fn from_exact(q: &ExactQuadrants) -> Self {
+        Self(q.map(|(s, n)| AtomicQuadrant {
+            sum_sq: AtomicSum::new(s.units()),
+            count: AtomicU64::new(n),
+        }))
+    }
+
+    /// Adds another leaf's quadrant sums (saturating).
+    pub(crate) fn add_exact(&mut self, other: &ExactQuadrants) {
+        let mine = self.exact();
+        *self = Self::from_exact(&std::array::from_fn(|q| {
+            (
+                mine[q].0.plus(other[q].0),
                 mine[q].1.saturating_add(other[q].1),
             )
         }));
@@ -238,48 +237,67 @@ impl AtomicQuadrants {
 
 impl Clone for AtomicQuadrants {
     fn clone(&self) -> Self {
-        Self::from_quadrants(self.get())
+        Self::from_exact(&self.exact())
     }
 }
 
 /// Sums one level below a directional leaf that [`DirectionalFilter::DeferredBox`] has yet to
 /// spread: per quadrant `q`, `(Σ v/p, Σ v²/p)` of the samples recorded there since the last
-/// spreading. One cache line per leaf, so that recording a sample touches one line for them.
+/// spreading. A quadrant's two sums share 32 aligned bytes, so that recording a sample writes
+/// one cache line for them.
 ///
 /// [`DirectionalFilter::DeferredBox`]: crate::DirectionalFilter::DeferredBox
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 #[repr(align(64))]
-pub(crate) struct AtomicPending {
-    sum: [AtomicF64; 4],
-    sum_sq: [AtomicF64; 4],
-}
+pub(crate) struct AtomicPending([AtomicSums; 4]);
 
 impl AtomicPending {
     /// Adds weights `(v/p, v²/p)` to quadrant `q`.
     #[inline]
-    pub(crate) fn add(&self, q: usize, (w1, w2): (f64, f64)) {
-        if w1 != 0.0 {
-            self.sum[q].add(w1);
-            self.sum_sq[q].add(w2);
-        }
+    pub(crate) fn add(&self, q: usize, w: (f64, f64)) {
+        self.0[q].add_sums(w);
     }
 
-    /// Each quadrant's `(Σ v/p, Σ v²/p)`, leaving zeros behind.
+    /// Each quadrant's `(Σ v/p, Σ v²/p)`, leaving zeros behind. Exact when no thread records
+    /// meanwhile (an add racing with it lands whole in neither, but in the two together).
     pub(crate) fn take(&self) -> [(f64, f64); 4] {
-        std::array::from_fn(|q| (self.sum[q].take(), self.sum_sq[q].take()))
+        std::array::from_fn(|q| {
+            (
+                take(&self.0[q].sum).value(),
+                take(&self.0[q].sum_sq).value(),
+            )
+        })
+    }
+
+    /// Each quadrant's exact `(Σ v/p, Σ v²/p)`.
+    pub(crate) fn exact(&self) -> [(Sum, Sum); 4] {
+        std::array::from_fn(|q| self.0[q].exact())
+    }
+
+    pub(crate) fn from_exact(p: &[(Sum, Sum); 4]) -> Self {
+        Self(p.map(AtomicSums::from_exact))
+    }
+
+    /// Adds another leaf's pending sums (merging workers), exactly.
+    pub(crate) fn add_exact(&mut self, other: &[(Sum, Sum); 4]) {
+        for (mine, &theirs) in self.0.iter_mut().zip(other) {
+            mine.add_exact(theirs);
+        }
     }
 
     /// [`take`](Self::take) with exclusive access (no atomic instructions).
     pub(crate) fn take_mut(&mut self) -> [(f64, f64); 4] {
-        std::array::from_fn(|q| (self.sum[q].take_mut(), self.sum_sq[q].take_mut()))
+        std::array::from_fn(|q| {
+            let (s1, s2) = self.0[q].take_mut();
+            (s1.value(), s2.value())
+        })
     }
 }
 
-impl Clone for AtomicPending {
-    fn clone(&self) -> Self {
-        Self {
-            sum: std::array::from_fn(|q| AtomicF64::new(self.sum[q].get())),
-            sum_sq: std::array::from_fn(|q| AtomicF64::new(self.sum_sq[q].get())),
-        }
-    }
+/// A shared sum read and zeroed (see [`AtomicPending::take`]).
+fn take(s: &AtomicSum) -> Sum {
+    let taken = s.sum();
+    // Subtracting what was read keeps what raced in: integers, so nothing is lost or doubled.
+    s.add_units(taken.units().wrapping_neg());
+    taken
 }

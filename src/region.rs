@@ -132,14 +132,21 @@ impl Region {
 
     /// Tallies a recorded sample's (unit) normal.
     #[inline]
-    pub(crate) fn record_normal(&self, n: Vec3) {
-        self.surfaces.record(n);
+    pub(crate) fn record_normal(&self, n: Vec3, priority: u64) {
+        self.surfaces.record(n, priority);
     }
 
     /// Adds a sample's mixture terms to the guide-selection sums (`pdf`: the mixture's).
     #[inline]
-    pub(crate) fn record_selection(&self, integrand: f32, bsdf_pdf: f32, guide_pdf: f32, pdf: f32) {
-        self.selection.record(integrand, bsdf_pdf, guide_pdf, pdf);
+    /// Returns whether a term was clamped to the sums' range.
+    pub(crate) fn record_selection(
+        &self,
+        integrand: f32,
+        bsdf_pdf: f32,
+        guide_pdf: f32,
+        pdf: f32,
+    ) -> bool {
+        self.selection.record(integrand, bsdf_pdf, guide_pdf, pdf)
     }
 
     /// The density on the square the sampling tree gives `square`.
@@ -169,8 +176,9 @@ impl Region {
 
     /// Adds one traced continuation's value and cost.
     #[inline]
-    pub(crate) fn record_continuation(&self, value: f32, cost: f32) {
-        self.continuations.record(value, cost);
+    /// Returns whether a term was clamped to the sums' range.
+    pub(crate) fn record_continuation(&self, value: f32, cost: f32) -> bool {
+        self.continuations.record(value, cost)
     }
 
     // --- refine (&mut self) ---
@@ -229,7 +237,9 @@ impl Region {
         if a.continuations.estimate != b.continuations.estimate {
             return Err("continuation estimates");
         }
-        if a.surfaces.products != b.surfaces.products {
+        if a.surfaces.products != b.surfaces.products
+            || a.surfaces.held_keys() != b.surfaces.held_keys()
+        {
             return Err("stored surface products");
         }
         Ok(())
@@ -237,10 +247,8 @@ impl Region {
 
     /// Adds what `other` recorded in the iteration (see [`same_start`](Self::same_start)):
     /// the directional moments and quadrant sums, the guide-selection and continuation sums,
-    /// the normal tally. Sums the deferred filter holds back join the moments first.
+    /// the normal tally, and the sums the deferred filter holds back — all exactly.
     pub(crate) fn add(&mut self, other: &Region) {
-        self.recording.flush_pending_mut();
-        other.recording.flush_pending();
         self.recording.add(&other.recording);
         self.selection.add_sums(other.selection.sums());
         self.continuations

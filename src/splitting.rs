@@ -4,7 +4,7 @@
 //! The derivation and how the field learns the moments are on [`Splitting`].
 
 use crate::config::ConfigError;
-use crate::moments::AtomicF64;
+use crate::exact::{AtomicSum, MAX_TERM, Sum};
 use crate::sample::RejectReason;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -125,14 +125,51 @@ impl ContinuationEstimate {
     }
 }
 
+/// A spatial leaf's recorded continuation sums, exact (see [`crate::exact`]): what caches and
+/// merges keep.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct ContinuationSums {
+    pub(crate) sum: Sum,
+    pub(crate) sum_sq: Sum,
+    pub(crate) cost: Sum,
+    pub(crate) count: u64,
+}
+
+impl ContinuationSums {
+    /// The sums as an estimate.
+    pub(crate) fn estimate(&self) -> ContinuationEstimate {
+        ContinuationEstimate {
+            sum: self.sum.value(),
+            sum_sq: self.sum_sq.value(),
+            cost: self.cost.value(),
+            count: self.count,
+        }
+    }
+
+    /// Both leaves' sums (merging workers): exact, in any order.
+    pub(crate) fn plus(&self, o: &ContinuationSums) -> ContinuationSums {
+        ContinuationSums {
+            sum: self.sum.plus(o.sum),
+            sum_sq: self.sum_sq.plus(o.sum_sq),
+            cost: self.cost.plus(o.cost),
+            count: self.count.saturating_add(o.count),
+        }
+    }
+
+    /// Sums with a sample count, or none at all.
+    pub(crate) fn is_valid(&self) -> bool {
+        self.count > 0 || (self.sum.is_zero() && self.sum_sq.is_zero() && self.cost.is_zero())
+    }
+}
+
 /// A spatial leaf's continuation estimate (what queries read) and the iteration's sums (what
 /// recording adds to, lock-free).
 #[derive(Debug, Default)]
 pub(crate) struct ContinuationStats {
     pub(crate) estimate: ContinuationEstimate,
-    sum: AtomicF64,
-    sum_sq: AtomicF64,
-    cost: AtomicF64,
+    sum: AtomicSum,
+    sum_sq: AtomicSum,
+    cost: AtomicSum,
     count: AtomicU64,
 }
 
@@ -143,32 +180,35 @@ impl Clone for ContinuationStats {
 }
 
 impl ContinuationStats {
-    pub(crate) fn from_parts(estimate: ContinuationEstimate, r: ContinuationEstimate) -> Self {
+    pub(crate) fn from_parts(estimate: ContinuationEstimate, r: ContinuationSums) -> Self {
         Self {
             estimate,
-            sum: AtomicF64::new(r.sum),
-            sum_sq: AtomicF64::new(r.sum_sq),
-            cost: AtomicF64::new(r.cost),
+            sum: AtomicSum::new(r.sum.units()),
+            sum_sq: AtomicSum::new(r.sum_sq.units()),
+            cost: AtomicSum::new(r.cost.units()),
             count: AtomicU64::new(r.count),
         }
     }
 
-    /// Adds one continuation (checked by [`Continuation::check`]).
+    /// Adds one continuation (checked by [`Continuation::check`]); returns whether a term was
+    /// clamped to the sums' range.
     #[inline]
-    pub(crate) fn record(&self, value: f32, cost: f32) {
+    pub(crate) fn record(&self, value: f32, cost: f32) -> bool {
         let v = f64::from(value);
+        let (v2, c) = (v * v, f64::from(cost));
         self.sum.add(v);
-        self.sum_sq.add(v * v);
-        self.cost.add(f64::from(cost));
+        self.sum_sq.add(v2);
+        self.cost.add(c);
         self.count.fetch_add(1, Ordering::Relaxed);
+        v2.max(c) > MAX_TERM
     }
 
     /// The current iteration's sums.
-    pub(crate) fn recorded(&self) -> ContinuationEstimate {
-        ContinuationEstimate {
-            sum: self.sum.get(),
-            sum_sq: self.sum_sq.get(),
-            cost: self.cost.get(),
+    pub(crate) fn recorded(&self) -> ContinuationSums {
+        ContinuationSums {
+            sum: self.sum.sum(),
+            sum_sq: self.sum_sq.sum(),
+            cost: self.cost.sum(),
             count: self.count.load(Ordering::Relaxed),
         }
     }
@@ -176,17 +216,17 @@ impl ContinuationStats {
     /// Ends an iteration: the recorded sums replace the estimate if there are enough of them,
     /// else join it; then they restart.
     pub(crate) fn step(&mut self) {
-        let r = self.recorded();
+        let r = self.recorded().estimate();
         let estimate = if r.count >= MIN_CONTINUATIONS {
             r
         } else {
             self.estimate.plus(&r)
         };
-        *self = Self::from_parts(estimate, ContinuationEstimate::default());
+        *self = Self::from_parts(estimate, ContinuationSums::default());
     }
 
     /// Adds another leaf's recorded sums (merging workers).
-    pub(crate) fn add_recorded(&mut self, r: &ContinuationEstimate) {
+    pub(crate) fn add_recorded(&mut self, r: &ContinuationSums) {
         *self = Self::from_parts(self.estimate, self.recorded().plus(r));
     }
 }
@@ -488,6 +528,6 @@ mod tests {
         }
         s.step();
         assert_eq!(s.estimate, cell(0.5, 0.25, 1.0, MIN_CONTINUATIONS));
-        assert_eq!(s.recorded(), ContinuationEstimate::default());
+        assert_eq!(s.recorded(), ContinuationSums::default());
     }
 }

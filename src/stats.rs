@@ -95,6 +95,10 @@ pub struct FieldStats {
     /// iteration that could tell (see
     /// [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost)).
     pub guides_off: u64,
+    /// Samples and continuations recorded with a weight clamped to the range of the field's
+    /// exact sums (above `2^48`), over the field's life: they were recorded, their
+    /// contribution to the learned distribution capped.
+    pub clamped_samples: u64,
 }
 
 /// Lock-free rejection counters (bad input is rare, so they are not contended).
@@ -132,5 +136,56 @@ impl Clone for RejectCounters {
         Self(std::array::from_fn(|i| {
             AtomicU64::new(self.0[i].load(Ordering::Relaxed))
         }))
+    }
+}
+
+/// A lock-free count of rare events: those of the current iteration, and those before it.
+#[derive(Debug, Default)]
+pub(crate) struct EventCount {
+    current: AtomicU64,
+    before: u64,
+}
+
+impl EventCount {
+    pub(crate) fn from_parts(before: u64, current: u64) -> Self {
+        Self {
+            current: AtomicU64::new(current),
+            before,
+        }
+    }
+
+    #[cold]
+    pub(crate) fn count(&self) {
+        self.current.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// `(before, current)`, as the cache stores them.
+    pub(crate) fn parts(&self) -> (u64, u64) {
+        (self.before, self.current.load(Ordering::Relaxed))
+    }
+
+    /// Every event over the field's life.
+    pub(crate) fn total(&self) -> u64 {
+        let (b, c) = self.parts();
+        b.saturating_add(c)
+    }
+
+    /// Ends an iteration: its events join those before.
+    pub(crate) fn end_iteration(&mut self) {
+        self.before = self.total();
+        *self.current.get_mut() = 0;
+    }
+
+    /// Adds the current iteration's events of `other` (merging workers).
+    pub(crate) fn add(&mut self, other: &EventCount) {
+        let c = self.current.get_mut();
+        *c = c.saturating_add(other.parts().1);
+    }
+}
+
+impl Clone for EventCount {
+    fn clone(&self) -> Self {
+        let (b, c) = self.parts();
+        Self::from_parts(b, c)
     }
 }

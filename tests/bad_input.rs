@@ -541,3 +541,63 @@ fn the_smallest_uniform_fraction_leaves_no_drawn_direction_at_zero_density() {
         }
     }
 }
+
+#[test]
+fn weights_at_the_ends_of_the_exact_sums_range_are_counted_and_keep_the_field_valid() {
+    // The sums are fixed point (2^-40 to 2^86, a term clamped at 2^48): tiny weights (1e-30,
+    // subnormals) add nothing, huge ones (1e30, a subnormal pdf) are clamped and counted, and
+    // many clamped samples into one cell keep it finite.
+    let p = Vec3::splat(0.3);
+    let at = |d: Vec3, value: f32, pdf: f32| Sample {
+        position: p,
+        direction: d,
+        value,
+        pdf,
+        normal: Some(Vec3::Z),
+        ..Sample::default()
+    };
+    let tiny = f32::from_bits(1);
+    let mut field = field();
+    let huge = [
+        at(Vec3::Z, 1e30, 1.0),
+        at(Vec3::Z, 1.0, tiny),
+        at(Vec3::X, f32::MAX, 1e-30),
+        at(Vec3::Y, 1e20, 1.0).with_mixture(1e20, 1.0, 1.0),
+    ];
+    let small = [
+        at(Vec3::Z, 1e-30, 1.0),
+        at(Vec3::X, tiny, 1.0),
+        at(Vec3::Y, tiny, f32::MAX),
+    ];
+    field.record_all(&huge);
+    field.record_all(&small);
+    // Many samples at the largest weight into one cell: 2^20 of 2^48 each, 2^68 in all.
+    let many = vec![at(-Vec3::Z, 1e30, 1.0); 1 << 20];
+    field.record_all(&many);
+    let continuation = sdguide::Continuation {
+        position: p,
+        value: f32::MAX,
+        cost: 1.0,
+    };
+    field.record_continuation(&continuation);
+    let stats = field.stats();
+    assert_eq!(stats.rejected.total(), 0);
+    assert_eq!(stats.clamped_samples, 4 + (1 << 20) + 1);
+    field.refine();
+    assert_eq!(field.stats().clamped_samples, 4 + (1 << 20) + 1);
+    // The learned guide is a density: finite, positive, integrating to 1.
+    let dist = field.distribution(p);
+    for (_, m) in dist.leaves() {
+        assert!(m.is_finite() && m > 0.0);
+    }
+    let integral: f64 = cell_integrals(&dist, 8).iter().sum();
+    assert!((integral - 1.0).abs() < 1e-5, "{integral}");
+    for u in [Vec2::ZERO, Vec2::splat(0.5), Vec2::splat(0.999)] {
+        let (d, pdf) = dist.sample(u);
+        assert!(d.is_finite() && pdf.is_finite() && pdf > 0.0);
+        assert_eq!(pdf.to_bits(), dist.pdf(d).to_bits());
+    }
+    // It saves, loads and merges as it is.
+    let loaded = GuidingField::from_bytes(&field.to_bytes()).unwrap();
+    assert_eq!(loaded.stats(), field.stats());
+}

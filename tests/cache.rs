@@ -249,19 +249,14 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((2, 6), &parts(&bytes)),
+        assemble((3, 0), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
-    // The same sections as a 2.0 file (2.1 and 2.2 only added a filter value and a rule value
-    // this field does not use, 2.3 an optional section, 2.4 a field at the end of META, which
-    // a reader takes whatever the version says).
-    let older = GuidingField::from_bytes(&assemble((2, 0), &parts(&bytes))).unwrap();
-    assert_same(&field, &older);
-    // A 2.2 file, without the continuations: it loads, with no continuation estimates and
-    // everything else as saved.
+    // Without the continuations (an optional section): it loads, with no continuation
+    // estimates and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 6).collect();
-    let older = GuidingField::from_bytes(&assemble((2, 2), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 0), &without)).unwrap();
     assert_eq!(older.stats().continuations_recorded, 0);
     assert!(
         older
@@ -269,34 +264,34 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
             .all(|c| older.continuation(c.bounds.center()) == ContinuationEstimate::default())
     );
     assert_eq!(older.to_bytes().len(), bytes.len());
-    // A 2.4 file, without the surface tallies: it loads, with no stored products (queries
-    // take the per-query product), and everything else as saved.
+    // Without the surface tallies: it loads, with no stored products (queries take the
+    // per-query product), and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 7).collect();
-    let older = GuidingField::from_bytes(&assemble((2, 4), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 0), &without)).unwrap();
     assert!(field.stats().surface_products > 0);
     assert_eq!(older.stats().surface_products, 0);
     for (a, b) in field.cells().zip(older.cells()) {
         assert_eq!(a.distribution().leaves(), b.distribution().leaves());
     }
-    // A 2.7 file with an optional section this reader does not know, and a longer META.
+    // A 3.1 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
     newer.insert(1, (99, 0, vec![1, 2, 3]));
-    let loaded = GuidingField::from_bytes(&assemble((2, 7), &newer)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((3, 1), &newer)).unwrap();
     assert_same(&field, &loaded);
     // An unknown section marked required is refused.
     let mut required = parts(&bytes);
     required.push((99, 1, vec![]));
     assert!(matches!(
-        GuidingField::from_bytes(&assemble((2, 7), &required)),
+        GuidingField::from_bytes(&assemble((3, 1), &required)),
         Err(CacheError::Corrupt {
             section: "sections",
             ..
         })
     ));
-    match GuidingField::from_bytes(&assemble((3, 0), &parts(&bytes))) {
+    match GuidingField::from_bytes(&assemble((4, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((3, 0), (2, 6)));
+            assert_eq!((found, supported), ((4, 0), (3, 0)));
         }
         other => panic!("{other:?}"),
     }
@@ -311,7 +306,7 @@ fn forge(bytes: &[u8], kind: u32, at: usize, value: [u8; 4]) -> Result<GuidingFi
     let mut p = parts(bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == kind).unwrap().2;
     body[at..at + 4].copy_from_slice(&value);
-    GuidingField::from_bytes(&assemble((2, 0), &p))
+    GuidingField::from_bytes(&assemble((3, 0), &p))
 }
 
 #[test]
@@ -343,19 +338,21 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "points to",
     );
     // SURFACES: a slot with flags no version defines (tree 0's first slot, after the count
-    // and the tree's two words and the slot's normal and count).
+    // and the tree's two words).
     corrupt(
-        forge(&bytes, 7, 4 + 8 + 16, 0xFFu32.to_le_bytes()),
+        forge(&bytes, 7, 4 + 8, 0xFFu32.to_le_bytes()),
         "surfaces",
         "flags",
     );
-    // SURFACES: a normal that is not of unit length, in a held slot.
+    // SURFACES: a normal that is not of unit length, in a held slot (flags, count, then the
+    // words: 0, the components, 0).
     let mut p = parts(&bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == 7).unwrap().2;
-    body[4 + 8..4 + 8 + 4].copy_from_slice(&3.0f32.to_le_bytes());
-    body[4 + 8 + 16..4 + 8 + 20].copy_from_slice(&1u32.to_le_bytes());
+    body[4 + 8..4 + 12].copy_from_slice(&1u32.to_le_bytes());
+    body[4 + 16..4 + 56].fill(0);
+    body[4 + 24..4 + 28].copy_from_slice(&3.0f32.to_le_bytes());
     corrupt(
-        GuidingField::from_bytes(&assemble((2, 0), &p)),
+        GuidingField::from_bytes(&assemble((3, 0), &p)),
         "surfaces",
         "normal",
     );
@@ -372,7 +369,8 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "directional",
         "points to",
     );
-    // DIRECTIONAL: a negative sum in the first tree's first leaf.
+    // DIRECTIONAL: a sum past the range (2^126 units) in the first tree's first leaf: its
+    // top word's high bits set.
     let p = parts(&bytes);
     let dir = &p[2].2;
     let ns = u32::from_le_bytes(dir[4..8].try_into().unwrap()) as usize;
@@ -380,14 +378,9 @@ fn forged_files_with_valid_checksums_are_still_refused() {
     let nr = u32::from_le_bytes(dir[nr_at..nr_at + 4].try_into().unwrap()) as usize;
     let first_sum = nr_at + 4 + 16 * nr + 4;
     corrupt(
-        forge(
-            &bytes,
-            3,
-            first_sum + 4,
-            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
-        ),
+        forge(&bytes, 3, first_sum + 12, [0, 0, 0, 0x80]),
         "directional",
-        "moments",
+        "range",
     );
     // META: a leaf rule this version does not define.
     corrupt(
@@ -431,7 +424,7 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         );
     }
     // GUIDE_COST: a count that differs from the trees', flags this version does not define, a
-    // negative second moment.
+    // second moment past the range.
     corrupt(
         forge(&bytes, 8, 0, 999u32.to_le_bytes()),
         "guide cost",
@@ -443,17 +436,12 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "flags",
     );
     corrupt(
-        forge(
-            &bytes,
-            8,
-            4 + 8 + 4,
-            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
-        ),
+        forge(&bytes, 8, 4 + 8 + 12, [0, 0, 0, 0x80]),
         "guide cost",
-        "sums",
+        "range",
     );
     // QUADRANTS: a tree count that differs from the trees', a leaf count that differs from
-    // the first tree's, a negative sum.
+    // the first tree's, a sum past the range.
     corrupt(
         forge(&bytes, 5, 0, 1u32.to_le_bytes()),
         "quadrants",
@@ -465,17 +453,12 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "leaves",
     );
     corrupt(
-        forge(
-            &bytes,
-            5,
-            8 + 4,
-            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
-        ),
+        forge(&bytes, 5, 8 + 12, [0, 0, 0, 0x80]),
         "quadrants",
-        "quadrant sums",
+        "range",
     );
     // SELECTION: a count that differs from the trees', a probability out of its bounds, a
-    // negative curvature sum.
+    // curvature sum past the range.
     corrupt(
         forge(&bytes, 4, 0, 999u32.to_le_bytes()),
         "selection",
@@ -487,14 +470,9 @@ fn forged_files_with_valid_checksums_are_still_refused() {
         "probability",
     );
     corrupt(
-        forge(
-            &bytes,
-            4,
-            4 + 20,
-            (-1.0f64).to_bits().to_le_bytes()[4..].try_into().unwrap(),
-        ),
+        forge(&bytes, 4, 4 + 8 + 16 + 12, [0, 0, 0, 0x80]),
         "selection",
-        "sums",
+        "range",
     );
     // CONTINUATIONS: a count that differs from the trees', a negative sum of squares in the
     // first tree's estimate, a cost in the recorded sums of a leaf that counted nothing.
@@ -515,16 +493,13 @@ fn forged_files_with_valid_checksums_are_still_refused() {
     );
     let p = parts(&bytes);
     let body = &p.iter().find(|s| s.0 == 6).unwrap().2;
-    let empty = (0..body.len().saturating_sub(4) / 64)
-        .find(|&i| body[4 + 64 * i + 56..4 + 64 * i + 64] == [0; 8])
+    // Each tree: the estimate (three f64 and a count, 32 bytes), the recorded sums (three
+    // exact sums and a count, 56 bytes).
+    let empty = (0..body.len().saturating_sub(4) / 88)
+        .find(|&i| body[4 + 88 * i + 80..4 + 88 * i + 88] == [0; 8])
         .expect("a tree that recorded no continuation in the iteration");
     corrupt(
-        forge(
-            &bytes,
-            6,
-            4 + 64 * empty + 32 + 16 + 4,
-            1.0f64.to_bits().to_le_bytes()[4..].try_into().unwrap(),
-        ),
+        forge(&bytes, 6, 4 + 88 * empty + 32 + 32, [1, 0, 0, 0]),
         "continuations",
         "recorded",
     );
@@ -537,7 +512,44 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (2, 6)));
+            assert_eq!((found, supported), ((1, 0), (3, 0)));
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A cache written by the 2.6 library (`f64` sums), kept in `tests/data`: `start` was saved
+/// right after `refine` (every sum zero), `mid` with an iteration's samples recorded,
+/// `guides-off` after training with a guide cost that turned some guides off.
+fn legacy(name: &str) -> Vec<u8> {
+    std::fs::read(format!("tests/data/v2.6-{name}.sdgc")).unwrap()
+}
+
+#[test]
+fn a_two_six_file_saved_at_an_iteration_start_converts_exactly() {
+    let bytes = legacy("start");
+    let field = GuidingField::from_bytes(&bytes).unwrap();
+    assert!(field.stats().spatial_leaves > 1 && field.stats().surface_products > 0);
+    assert_eq!(field.stats().samples_recorded, 0);
+    // Saved as 3.0, loaded again: the same field.
+    let again = GuidingField::from_bytes(&field.to_bytes()).unwrap();
+    assert_same(&field, &again);
+    // Training continues from it.
+    let mut field = field;
+    workload().record_iteration(&field, 9, 3_000);
+    field.refine();
+    assert_eq!(field.stats().iteration, 3);
+}
+
+#[test]
+fn a_two_six_file_saved_mid_iteration_is_refused_with_a_typed_error() {
+    // Its sums are floating point, and almost none is a multiple of 2^-40: no exact sum of
+    // 3.0 equals it, and rounding would make two workers' files disagree with one machine's.
+    match GuidingField::from_bytes(&legacy("mid")) {
+        Err(e @ CacheError::Inexact { section, value }) => {
+            assert_eq!(section, "directional");
+            assert!(value.is_finite() && value > 0.0);
+            assert!(e.to_string().contains("mid-iteration"), "{e}");
         }
         other => panic!("{other:?}"),
     }
@@ -547,8 +559,9 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
 fn a_file_without_the_refinement_fields_keeps_refining_by_flux_share() {
     // META in its 1.1 layout (without the refinement fields), no quadrant sums: the reader
     // takes the fields it needs at least and defaults the rest, as for any shorter META.
-    let field = small_field();
-    let mut old = parts(&field.to_bytes());
+    let bytes = legacy("start");
+    let field = GuidingField::from_bytes(&bytes).unwrap();
+    let mut old = parts(&bytes);
     old[0].2.truncate(184);
     old.retain(|p| p.0 != 5);
     let loaded = GuidingField::from_bytes(&assemble((2, 0), &old)).unwrap();
@@ -564,8 +577,9 @@ fn a_file_without_the_refinement_fields_keeps_refining_by_flux_share() {
 fn a_file_without_the_guide_probability_bound_keeps_the_widest() {
     // META in its 2.3 layout: the field learned its guide probabilities up to 0.95, and goes on
     // so; everything else loads as saved.
-    let field = small_field();
-    let mut old = parts(&field.to_bytes());
+    let bytes = legacy("start");
+    let field = GuidingField::from_bytes(&bytes).unwrap();
+    let mut old = parts(&bytes);
     old[0].2.truncate(192);
     let loaded = GuidingField::from_bytes(&assemble((2, 3), &old)).unwrap();
     assert_eq!(loaded.config().max_guide_probability, MAX_GUIDE_PROBABILITY);
@@ -633,6 +647,8 @@ fn guides_turned_off_load_as_saved_and_older_files_never_turn_one_off() {
     assert_same(&a, &b);
     // A 2.5 file: no guide-cost section, META without the cost. Every guide is on (at the
     // probability it learned), and stays on.
+    let bytes = legacy("guides-off");
+    assert!(GuidingField::from_bytes(&bytes).unwrap().stats().guides_off > 0);
     let mut old = parts(&bytes);
     old[0].2.truncate(196);
     old.retain(|p| p.0 != 8);

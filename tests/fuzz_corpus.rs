@@ -55,6 +55,33 @@ fn write_seed_corpus() {
     .unwrap();
     std::fs::write(dir.join("cache_load/empty"), empty.to_bytes()).unwrap();
     std::fs::write(dir.join("cache_load/truncated"), &v1[..200]).unwrap();
+    // A small 3.0 cache in the middle of an iteration: exact sums in every section (moments,
+    // quadrants, pending sums of the deferred filter, selection and continuation sums, the
+    // tally's held slots and buckets), and a 2.6 one saved at an iteration's start.
+    let small = GuidingConfig {
+        spatial_threshold: 300.0,
+        max_directional_nodes: 24,
+        directional_filter: sdguide::DirectionalFilter::DeferredBox,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(sdguide_lab::synthetic::room_bounds(), small).unwrap();
+    let work = sdguide_lab::synthetic::Workload {
+        light: sdguide_lab::synthetic::LightField::standard(),
+        lobe_noise: 2.0,
+        seed: 1,
+        bsdf: Some(sdguide_lab::synthetic::Bsdf {
+            axis: glam::Vec3::Z,
+            kappa: 2.0,
+        }),
+    };
+    work.train(&mut field, 2, 400);
+    work.record_iteration(&field, 5, 300);
+    field.record_continuation(&sdguide::Continuation {
+        position: glam::Vec3::splat(0.5),
+        value: 2.0,
+        cost: 3.0,
+    });
+    std::fs::write(dir.join("cache_load/trained-3.0"), field.to_bytes()).unwrap();
 
     // field_ops: a training session, bad inputs, and an absurd configuration.
     let config = |c: f32, rho: f32, depth: u8, eps: f32, nodes: u16, spatial: u16, mem: u8| {
@@ -127,6 +154,25 @@ fn write_seed_corpus() {
     floats(&mut bad, &[nan, inf, -inf, nan, nan, 1.0]);
     bad.extend_from_slice(&[4, 5]);
     std::fs::write(dir.join("field_ops/bad-input"), bad).unwrap();
+
+    // Samples with normals (eight directions, more than a cell's four slots) and mixture terms,
+    // continuations, refines and round trips: the tally's buckets and every exact sum.
+    let mut normals = config(200.0, 0.01, 20, 0.01, 8192, 4096, 64);
+    for round in 0..3 {
+        for i in 0..80u32 {
+            let t = (i as f32 + 0.5) / 80.0;
+            let a = (i % 8) as f32 * 0.785;
+            normals.push(0);
+            floats(&mut normals, &[t, 1.0 - t, (t * 3.0).fract()]);
+            floats(&mut normals, &[a.cos(), a.sin(), 0.3]);
+            floats(&mut normals, &[0.5 + t, 0.3]);
+            normals.push(0x80 | 0x20 | (i % 4) as u8);
+            normals.push(5);
+            floats(&mut normals, &[t, 0.5, 0.5, 2.0 * t, 1.5]);
+        }
+        normals.push(if round == 1 { 4 } else { 2 });
+    }
+    std::fs::write(dir.join("field_ops/normals-continuations"), normals).unwrap();
 
     let mut absurd = config(1.0, 1e-30, 20, 1e-30, 65535, 65535, 1);
     for i in 0..100 {

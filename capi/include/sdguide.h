@@ -397,6 +397,11 @@ typedef struct {
    Bytes held by the trees.
    */
   uint64_t bytes;
+  /*
+   Samples and continuations recorded with a weight clamped to the range of the field's
+   exact sums (above 2^48), over the field's life.
+   */
+  uint64_t clamped_samples;
 } sdg_stats;
 
 #ifdef __cplusplus

@@ -313,6 +313,9 @@ pub struct sdg_stats {
     pub directional_splits_refused: u64,
     /// Bytes held by the trees.
     pub bytes: u64,
+    /// Samples and continuations recorded with a weight clamped to the range of the field's
+    /// exact sums (above 2^48), over the field's life.
+    pub clamped_samples: u64,
 }
 
 /// Writes the field's statistics to `*out`.
@@ -350,6 +353,7 @@ pub unsafe extern "C" fn sdg_field_stats(
             spatial_splits_refused: s.spatial_splits_refused,
             directional_splits_refused: s.directional_splits_refused,
             bytes: s.bytes,
+            clamped_samples: s.clamped_samples,
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", stats) }?;

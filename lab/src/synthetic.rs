@@ -231,21 +231,33 @@ impl Workload {
     /// from the ½–½ mixture of uniform and guided sampling, the light's value and the mixture
     /// pdf.
     pub fn draw(&self, field: &GuidingField, rng: &mut Rng) -> Sample {
-        let (x, normal) = room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let vertex = room_vertex([rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        self.draw_at(field, vertex, self.bsdf, rng)
+    }
+
+    /// [`draw`](Self::draw) at the vertex `(x, normal)`, with `bsdf` in place of the
+    /// workload's.
+    pub fn draw_at(
+        &self,
+        field: &GuidingField,
+        (x, normal): (Vec3, Vec3),
+        bsdf: Option<Bsdf>,
+        rng: &mut Rng,
+    ) -> Sample {
         let dist = field.distribution(x);
-        let a = match self.bsdf {
+        let a = match bsdf {
             Some(_) => dist.guide_probability(),
             None => 0.5,
         };
         let guided = rng.next_f32() < a;
         let u = rng.next_vec2();
-        let d = match (guided, &self.bsdf) {
+        let d = match (guided, &bsdf) {
             (true, _) => dist.sample(u).0,
             (false, Some(b)) => b.sample(u),
             (false, None) => square_to_direction(u),
         };
         let guide_pdf = dist.pdf(d);
-        let other_pdf = self.bsdf.map_or(INV_SPHERE_AREA, |b| b.pdf(d));
+        let other_pdf = bsdf.map_or(INV_SPHERE_AREA, |b| b.pdf(d));
         let pdf = a * guide_pdf + (1.0 - a) * other_pdf;
         let v = self.value(x, d, rng);
         let sample = Sample {
@@ -256,7 +268,7 @@ impl Workload {
             normal: Some(normal),
             ..Sample::default()
         };
-        match self.bsdf {
+        match bsdf {
             Some(_) => sample.with_mixture(v * other_pdf, other_pdf, guide_pdf),
             None => sample,
         }

@@ -119,3 +119,58 @@ fn bad_options_are_refused_with_a_message() {
     }
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn training_and_rendering_give_the_same_bytes_whatever_the_thread_count() {
+    // At a fixed sample count, every pixel's samples and every recorded sample are the
+    // same, and the field's sums are exact: the caches are byte-identical, and so are the
+    // images (the PNGs; the EXRs' compression runs in parallel and orders its blocks as
+    // they finish).
+    let files = [
+        "door-guided-l2-ears.sdgc",
+        "door-unguided-ears.sdgc",
+        "door-guided-l2-ears.png",
+        "door-unguided.png",
+    ];
+    let runs: Vec<Vec<Vec<u8>>> = ["1", "2", "5"]
+        .iter()
+        .map(|threads| {
+            let out = std::env::temp_dir().join(format!(
+                "sdguide-cli-threads-{threads}-{}",
+                std::process::id()
+            ));
+            let run = Command::new(env!("CARGO_BIN_EXE_render"))
+                .args([
+                    "--scene", "door", "--time", "0", "--spp", "4", "--width", "48",
+                ])
+                .args([
+                    "--height",
+                    "36",
+                    "--peer",
+                    "none",
+                    "--threads",
+                    threads,
+                    "--out",
+                ])
+                .arg(&out)
+                .output()
+                .expect("the render binary runs");
+            assert!(
+                run.status.success(),
+                "{}",
+                String::from_utf8_lossy(&run.stderr)
+            );
+            let bytes = files
+                .iter()
+                .map(|f| std::fs::read(out.join(f)).unwrap())
+                .collect();
+            std::fs::remove_dir_all(&out).unwrap();
+            bytes
+        })
+        .collect();
+    for (threads, run) in ["2", "5"].iter().zip(&runs[1..]) {
+        for (f, (a, b)) in files.iter().zip(runs[0].iter().zip(run)) {
+            assert!(a == b, "{f}: 1 thread and {threads} differ");
+        }
+    }
+}

@@ -30,6 +30,14 @@ impl Out {
             self.f32(c);
         }
     }
+    /// An exact sum: its units as a little-endian `u128`.
+    pub(super) fn sum(&mut self, s: Sum) {
+        self.0.extend_from_slice(&s.units().to_le_bytes());
+    }
+    /// A signed exact sum: its units in two's complement.
+    pub(super) fn signed(&mut self, s: Signed) {
+        self.0.extend_from_slice(&s.units().to_le_bytes());
+    }
 }
 
 /// A little-endian reader over one section; reading past its end is corruption (the file's
@@ -37,9 +45,25 @@ impl Out {
 pub(super) struct In<'a> {
     pub(super) bytes: &'a [u8],
     pub(super) section: &'static str,
+    /// Whether sums are stored as in 2.x: as `f64`, converted exactly or refused.
+    pub(super) legacy: bool,
 }
 
 impl<'a> In<'a> {
+    pub(super) fn new(bytes: &'a [u8], section: &'static str) -> Self {
+        Self {
+            bytes,
+            section,
+            legacy: false,
+        }
+    }
+    /// A reader of sums written by format `major`.
+    pub(super) fn with_sums(bytes: &'a [u8], section: &'static str, major: u16) -> Self {
+        Self {
+            legacy: major < FORMAT_MAJOR,
+            ..Self::new(bytes, section)
+        }
+    }
     pub(super) fn take(&mut self, n: usize) -> Result<&'a [u8], CacheError> {
         if n > self.bytes.len() {
             return Err(corrupt(
@@ -79,6 +103,40 @@ impl<'a> In<'a> {
     }
     pub(super) fn vec3(&mut self) -> Result<Vec3, CacheError> {
         Ok(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
+    }
+    fn u128(&mut self) -> Result<u128, CacheError> {
+        Ok(u128::from_le_bytes(self.array()?))
+    }
+    /// A 2.x sum, an `f64`: finite (and non-negative unless `signed`), then converted exactly.
+    fn legacy_sum<T>(
+        &mut self,
+        signed: bool,
+        exactly: fn(f64) -> Option<T>,
+    ) -> Result<T, CacheError> {
+        let x = self.f64()?;
+        if !(x.is_finite() && (signed || x >= 0.0)) {
+            return Err(corrupt(self.section, format!("sum {x}")));
+        }
+        exactly(x).ok_or(CacheError::Inexact {
+            section: self.section,
+            value: x,
+        })
+    }
+    /// A non-negative exact sum (see [`Out::sum`]).
+    pub(super) fn sum(&mut self) -> Result<Sum, CacheError> {
+        if self.legacy {
+            return self.legacy_sum(false, Sum::exactly);
+        }
+        let u = self.u128()?;
+        Sum::checked(u)
+            .ok_or_else(|| corrupt(self.section, format!("sum of {u} units, past the range")))
+    }
+    /// A signed exact sum (see [`Out::signed`]).
+    pub(super) fn signed(&mut self) -> Result<Signed, CacheError> {
+        if self.legacy {
+            return self.legacy_sum(true, Signed::exactly);
+        }
+        Ok(Signed::from_units(self.u128()?))
     }
     /// A `u32` element count, checked against the bytes left before anyone allocates for it.
     pub(super) fn count(&mut self, element_len: usize, what: &str) -> Result<usize, CacheError> {

@@ -33,7 +33,7 @@ pub(super) fn write_envelope(sections: &[(u32, u32, Vec<u8>)]) -> Vec<u8> {
     out.0
 }
 
-/// The three sections every 1.x file has.
+/// The sections of a file (the first three required), and its major version.
 pub(super) struct Sections<'a> {
     pub(super) meta: &'a [u8],
     pub(super) spatial: &'a [u8],
@@ -43,6 +43,9 @@ pub(super) struct Sections<'a> {
     pub(super) surfaces: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
     pub(super) guide_cost: Option<&'a [u8]>,
+    pub(super) pending: Option<&'a [u8]>,
+    /// The file's major version: 2.x files hold their sums as `f64`.
+    pub(super) major: u16,
 }
 
 /// Checks magic, version, length and checksum, and finds the sections.
@@ -59,12 +62,9 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             found,
         });
     }
-    let mut header = In {
-        bytes: &bytes[MAGIC.len()..HEADER_LEN],
-        section: "header",
-    };
+    let mut header = In::new(&bytes[MAGIC.len()..HEADER_LEN], "header");
     let version = (header.u16()?, header.u16()?);
-    if version.0 != FORMAT_MAJOR {
+    if !(LEGACY_MAJOR..=FORMAT_MAJOR).contains(&version.0) {
         return Err(CacheError::UnsupportedVersion {
             found: version,
             supported: (FORMAT_MAJOR, FORMAT_MINOR),
@@ -103,13 +103,10 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         .and_then(|t| t.checked_add(HEADER_LEN))
         .filter(|&t| t <= body_end)
         .ok_or_else(|| corrupt("sections", format!("{section_count} entries do not fit")))?;
-    let mut table = In {
-        bytes: &bytes[HEADER_LEN..table_end],
-        section: "sections",
-    };
+    let mut table = In::new(&bytes[HEADER_LEN..table_end], "sections");
     let (mut meta, mut spatial, mut directional) = (None, None, None);
     let (mut selection, mut quadrants, mut continuations) = (None, None, None);
-    let (mut surfaces, mut guide_cost) = (None, None);
+    let (mut surfaces, mut guide_cost, mut pending) = (None, None, None);
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -133,6 +130,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_CONTINUATIONS => &mut continuations,
             SECTION_SURFACES => &mut surfaces,
             SECTION_GUIDE_COST => &mut guide_cost,
+            SECTION_PENDING => &mut pending,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -158,5 +156,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         continuations,
         surfaces,
         guide_cost,
+        pending,
+        major: version.0,
     })
 }

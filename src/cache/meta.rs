@@ -58,16 +58,17 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     debug_assert_eq!(out.0.len(), META_LEN_2_5);
     // The guide never off: a negative cost.
     out.f32(c.guide_cost.unwrap_or(-1.0));
+    debug_assert_eq!(out.0.len(), META_LEN_2_6);
+    let (before, current) = field.clamped.parts();
+    out.u64(before);
+    out.u64(current);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
 
 /// Reads `META` into a field with its configuration, bounds and counters (and no trees yet).
 pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
-    let mut r = In {
-        bytes,
-        section: "meta",
-    };
+    let mut r = In::new(bytes, "meta");
     let rule = match r.u8()? {
         0 => LeafRule::L1,
         1 => LeafRule::L2,
@@ -157,6 +158,10 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     } else {
         Some(r.f32()?).filter(|&c| c >= 0.0 || c.is_nan())
     };
+    // 3.0: the clamped-sample counters. An older file's sums were floating point: none clamped.
+    if !r.bytes.is_empty() {
+        field.clamped = EventCount::from_parts(r.u64()?, r.u64()?);
+    }
     field
         .config
         .validate()

@@ -14,19 +14,20 @@
 
 use crate::bounds::Aabb;
 use crate::config::GuidingConfig;
+use crate::exact::{Signed, Sum};
 use crate::field::GuidingField;
 use crate::filter::{DirectionalFilter, SpatialFilter};
 use crate::guide_probability::{
     GuideSelection, MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY, SelectionSums,
 };
-use crate::moments::{AtomicMoments, AtomicQuadrants, Moments};
-use crate::quadtree::{self, RecordingTree, SLOTS, SamplingNode, SamplingTree, Tallied};
+use crate::moments::{AtomicPending, AtomicQuadrants, AtomicSums};
+use crate::quadtree::{self, RecordingTree, SLOTS, SamplingNode, SamplingTree, Tallied, WORDS};
 use crate::refinement::Refinement;
 use crate::region::Region;
 use crate::rule::LeafRule;
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
-use crate::splitting::{ContinuationEstimate, ContinuationStats};
-use crate::stats::{RejectCounters, Rejections};
+use crate::splitting::{ContinuationEstimate, ContinuationStats, ContinuationSums};
+use crate::stats::{EventCount, RejectCounters, Rejections};
 use glam::Vec3;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -43,8 +44,9 @@ mod validate;
 use bytes::{In, Out};
 use envelope::{read_envelope, write_envelope};
 use leaf_sums::{
-    decode_continuations, decode_guide_cost, decode_quadrants, decode_selection, decode_surfaces,
-    encode_continuations, encode_guide_cost, encode_quadrants, encode_selection, encode_surfaces,
+    decode_continuations, decode_guide_cost, decode_pending, decode_quadrants, decode_selection,
+    decode_surfaces, encode_continuations, encode_guide_cost, encode_pending, encode_quadrants,
+    encode_selection, encode_surfaces,
 };
 use meta::{decode_meta, encode_meta};
 use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
@@ -52,22 +54,20 @@ use validate::{check_permutation, check_tree, node_count};
 
 /// The first eight bytes of every cache file.
 pub const MAGIC: [u8; 8] = *b"SDGUIDE\0";
-/// The format's major version: a reader refuses other majors. Major 2 has the byte layout of
-/// 1.2, with the directional trees on the octahedral map (see [`sphere`](crate::sphere)); in a
-/// 1.x file they are on the cylindrical map, so the same bytes mean other directions.
-pub const FORMAT_MAJOR: u16 = 2;
+/// The format's major version. Major 3 stores every sum a field learns from as an exact
+/// fixed-point integer (see the crate docs on determinism), where major 2 stored `f64`: a
+/// reader loads majors 2 and 3 and refuses others. A 2.x file loads when each of its sums is
+/// one exactly — always true of a file saved at an iteration's start, whose sums are zero — and
+/// is refused with [`CacheError::Inexact`] otherwise. Major 2 had the byte layout of 1.2 with the
+/// directional trees on the octahedral map; 1.x files are refused.
+pub const FORMAT_MAJOR: u16 = 3;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
-/// not know (optional sections, trailing bytes of a section). 2.1 added directional filter 2
-/// (the deferred box filter) to `META`, 2.2 leaf rule 2 ([`LeafRule::L2Mixture`]) — an older
-/// reader refuses files that use them — and 2.3 the optional `CONTINUATIONS` section (the
-/// moments [`Splitting`](crate::Splitting) learns from), which an older reader skips; 2.4
-/// appends [`max_guide_probability`](crate::GuidingConfig::max_guide_probability) to `META`,
-/// which an older reader ignores (it learns up to its own bound); 2.5 adds the optional
-/// `SURFACES` section (each spatial cell's tally of recorded normals), which an older reader
-/// skips; 2.6 appends [`guide_cost`](crate::GuidingConfig::guide_cost) to `META` and adds the
-/// optional `GUIDE_COST` section (whether each spatial cell's guide is off, and the sums that
-/// decide it), which an older reader ignores and skips.
-pub const FORMAT_MINOR: u16 = 6;
+/// not know (optional sections, trailing bytes of a section). 3.0 is 2.6 with exact sums, the
+/// normal tally's buckets, the clamped-sample counters at the end of `META`, and the optional
+/// `PENDING` section (the deferred box filter's sums not yet spread).
+pub const FORMAT_MINOR: u16 = 0;
+/// The oldest major a reader loads (converting its sums).
+const LEGACY_MAJOR: u16 = 2;
 
 const HEADER_LEN: usize = 32;
 const ENTRY_LEN: usize = 24;
@@ -94,6 +94,9 @@ const SURFACES_LEN: usize = 8 + 20 * SLOTS;
 /// (optional: a reader without it starts every guide on, with no sums).
 const SECTION_GUIDE_COST: u32 = 8;
 const GUIDE_COST_LEN: usize = 40;
+/// 3.0: each directional leaf's sums the deferred box filter has yet to spread (optional: a
+/// reader without it spreads nothing it did not see).
+const SECTION_PENDING: u32 = 9;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -104,10 +107,12 @@ const META_LEN_1_1: usize = 184;
 const META_LEN_2_3: usize = 192;
 /// Length of the `META` section in formats 2.4 and 2.5.
 const META_LEN_2_5: usize = 196;
+/// Length of the `META` section in format 2.6.
+const META_LEN_2_6: usize = 200;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
 /// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound,
-/// 2.6 the guide's cost).
-const META_LEN: usize = 200;
+/// 2.6 the guide's cost, 3.0 the clamped-sample counters).
+const META_LEN: usize = 216;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -143,6 +148,16 @@ pub enum CacheError {
         /// The checksum of what was read.
         computed: u32,
     },
+    /// A 2.x file holds a floating-point sum that no exact sum of this format equals: it was
+    /// saved in the middle of an iteration by a library whose sums depended on the order of
+    /// the samples. Refine it with that library first (a file saved at an iteration's start
+    /// converts), or record the iteration again.
+    Inexact {
+        /// The section that holds it.
+        section: &'static str,
+        /// The sum.
+        value: f64,
+    },
     /// A part of the file is malformed (only possible when the checksum was forged or the
     /// writer was faulty).
     Corrupt {
@@ -169,6 +184,12 @@ impl fmt::Display for CacheError {
             CacheError::ChecksumMismatch { stored, computed } => write!(
                 f,
                 "cache checksum mismatch: stored {stored:08x}, computed {computed:08x}"
+            ),
+            CacheError::Inexact { section, value } => write!(
+                f,
+                "cache of format 2.x holds the floating-point sum {value} ({section}), which no \
+                 exact sum equals: it was saved mid-iteration; refine it with the library that \
+                 wrote it first"
             ),
             CacheError::Corrupt { section, detail } => {
                 write!(f, "corrupt cache ({section}): {detail}")
@@ -246,6 +267,7 @@ impl GuidingField {
             ),
             (SECTION_SURFACES, 0, encode_surfaces(&self.regions)),
             (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.regions)),
+            (SECTION_PENDING, 0, encode_pending(&self.regions)),
         ];
         write_envelope(&sections)
     }
@@ -272,25 +294,29 @@ impl GuidingField {
     /// corrupt section (with detail).
     pub fn from_bytes(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         let sections = read_envelope(bytes)?;
+        let major = sections.major;
         let mut field = decode_meta(sections.meta)?;
         field.spatial = decode_spatial(sections.spatial, &field)?;
-        field.regions = decode_directional(sections.directional, &field)?;
+        field.regions = decode_directional(sections.directional, &field, major)?;
         if let Some(bytes) = sections.selection {
-            decode_selection(bytes, &mut field.regions)?;
+            decode_selection(bytes, &mut field.regions, major)?;
         }
         if let Some(bytes) = sections.quadrants {
-            decode_quadrants(bytes, &mut field.regions)?;
+            decode_quadrants(bytes, &mut field.regions, major)?;
         }
         if let Some(bytes) = sections.continuations {
-            decode_continuations(bytes, &mut field.regions)?;
+            decode_continuations(bytes, &mut field.regions, major)?;
         }
         if let Some(bytes) = sections.surfaces {
-            decode_surfaces(bytes, &mut field.regions)?;
+            decode_surfaces(bytes, &mut field.regions, major)?;
         }
         if let Some(bytes) = sections.guide_cost {
-            decode_guide_cost(bytes, &mut field.regions)?;
+            decode_guide_cost(bytes, &mut field.regions, major)?;
         }
         field.prepare_recording();
+        if let Some(bytes) = sections.pending {
+            decode_pending(bytes, &mut field.regions)?;
+        }
         Ok(field)
     }
 

@@ -18,10 +18,7 @@ pub(super) fn decode_spatial(
     bytes: &[u8],
     field: &GuidingField,
 ) -> Result<SpatialTree, CacheError> {
-    let mut r = In {
-        bytes,
-        section: "spatial",
-    };
+    let mut r = In::new(bytes, "spatial");
     let n = r.count(4, "nodes")?;
     if n == 0 || n > field.config.max_spatial_nodes as usize {
         return Err(corrupt(
@@ -70,13 +67,13 @@ pub(super) fn encode_directional(trees: &[Region]) -> Vec<u8> {
                 out.u32(s);
             }
         }
-        // The moments as the format defines them: every sample's filtered share included.
-        r.flush_pending();
+        // The deferred filter's pending sums stay apart (the `PENDING` section): spreading
+        // them rounds, and a farm's merged workers must spread what one machine would.
         out.u32(r.moments.len() as u32);
-        for m in r.moments.iter() {
-            let m = m.get();
-            out.f64(m.sum);
-            out.f64(m.sum_sq);
+        for k in 0..r.moments.len() {
+            let m = r.exact_moments(k);
+            out.sum(m.sum);
+            out.sum(m.sum_sq);
             out.u64(m.count);
         }
     }
@@ -86,11 +83,9 @@ pub(super) fn encode_directional(trees: &[Region]) -> Vec<u8> {
 pub(super) fn decode_directional(
     bytes: &[u8],
     field: &GuidingField,
+    major: u16,
 ) -> Result<Vec<Region>, CacheError> {
-    let mut r = In {
-        bytes,
-        section: "directional",
-    };
+    let mut r = In::with_sums(bytes, "directional", major);
     let leaves = field.spatial.leaves().len();
     let n = r.count(12, "trees")?;
     if n != leaves {
@@ -173,27 +168,25 @@ pub(super) fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<Region, C
             format!("{m} leaf moments for {} leaves", leaf_slots.len()),
         ));
     }
-    let mut moments = Vec::with_capacity(m);
-    for k in 0..m {
-        let mm = Moments {
-            sum: r.f64()?,
-            sum_sq: r.f64()?,
-            count: r.u64()?,
-        };
-        let sums_ok = [mm.sum, mm.sum_sq]
-            .iter()
-            .all(|s| s.is_finite() && *s >= 0.0);
+    let (mut moments, mut quadrants) = (Vec::with_capacity(m), Vec::with_capacity(m));
+    for _ in 0..m {
         // A zero count may carry sums: a box filter spreads shares into leaves it does not count.
-        if !sums_ok {
-            return Err(corrupt(section, format!("leaf {k}: moments {mm:?}")));
-        }
-        moments.push(AtomicMoments::from_moments(mm));
+        moments.push(AtomicSums::from_exact((r.sum()?, r.sum()?)));
+        // The count is the quadrants'; until `QUADRANTS` (if present) says how it divides,
+        // the first quadrant holds it.
+        let count = r.u64()?;
+        quadrants.push(AtomicQuadrants::from_exact(&[
+            (Sum::ZERO, count),
+            (Sum::ZERO, 0),
+            (Sum::ZERO, 0),
+            (Sum::ZERO, 0),
+        ]));
     }
     Ok(Region::new(
         SamplingTree::new(sampling.into_boxed_slice()),
         RecordingTree {
             nodes: nodes.into_boxed_slice(),
-            quadrants: (0..moments.len()).map(|_| Default::default()).collect(),
+            quadrants: quadrants.into_boxed_slice(),
             moments: moments.into_boxed_slice(),
             pending: Box::default(),
         },

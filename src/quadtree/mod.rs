@@ -37,9 +37,9 @@ pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineParams, refine};
 pub(crate) use sampling::{GRID_BYTES, SamplingNode, SamplingTree};
-pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, tallies};
+pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, WORDS, tally_priority};
 
-use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants};
+use crate::moments::{AtomicPending, AtomicQuadrants, AtomicSums};
 use glam::Vec2;
 #[cfg(test)]
 use recording::FREE;
@@ -58,20 +58,20 @@ pub(crate) const RESUME: u16 = u16::MAX;
 /// Most interior nodes a directional tree may have: sampling nodes index children with `u16`.
 pub(crate) const MAX_NODES: u32 = u16::MAX as u32;
 
-/// Bytes one recording leaf holds: its moments (24) and its quadrant sums (64), and under the
-/// deferred box filter its pending sums (64 more).
+/// Bytes one recording leaf holds: its sums (32: two 16-byte exact sums) and its quadrants' sums
+/// and counts (96), and under the deferred box filter its pending sums (128 more).
 pub(crate) const fn leaf_bytes(deferred: bool) -> u64 {
     let pending = if deferred {
         size_of::<AtomicPending>()
     } else {
         0
     };
-    (size_of::<AtomicMoments>() + size_of::<AtomicQuadrants>() + pending) as u64
+    (size_of::<AtomicSums>() + size_of::<AtomicQuadrants>() + pending) as u64
 }
 
 /// Upper bound on the bytes one interior node costs a directional tree: its sampling node (32)
 /// and the cuts `sample` descends by (24), its recording node (16), and the three leaves it
-/// adds net (336 in all; 528 under the deferred box filter).
+/// adds net (456 in all; 840 under the deferred box filter).
 pub(crate) const fn bytes_per_node(deferred: bool) -> u64 {
     (size_of::<SamplingNode>() + size_of::<Cuts>() + size_of::<[u32; 4]>()) as u64
         + 3 * leaf_bytes(deferred)
@@ -288,10 +288,10 @@ mod tests {
 
     #[test]
     fn a_node_costs_what_the_configuration_documents() {
-        assert_eq!(leaf_bytes(false), 24 + 64);
+        assert_eq!(leaf_bytes(false), 32 + 96);
         assert_eq!(std::mem::size_of::<Cuts>(), 24);
-        assert_eq!(bytes_per_node(false), 336);
-        assert_eq!(leaf_bytes(true), 24 + 64 + 64);
-        assert_eq!(bytes_per_node(true), 528);
+        assert_eq!(bytes_per_node(false), 456);
+        assert_eq!(leaf_bytes(true), 32 + 96 + 128);
+        assert_eq!(bytes_per_node(true), 840);
     }
 }

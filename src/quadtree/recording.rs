@@ -4,7 +4,7 @@
 
 use super::{DirectionalCell, LEAF_BIT, fixed, quadrant_bits};
 use crate::filter::DirectionalFilter;
-use crate::moments::{AtomicMoments, AtomicPending, AtomicQuadrants, Moments};
+use crate::moments::{AtomicPending, AtomicQuadrants, AtomicSums, ExactMoments, Moments};
 use glam::Vec2;
 
 /// A child slot of a recording node under construction that will become a leaf.
@@ -15,9 +15,10 @@ pub(super) const FREE: u32 = 0;
 pub(crate) struct RecordingTree {
     /// Child slots: an interior node's index, or `LEAF_BIT | index into moments`.
     pub(crate) nodes: Box<[[u32; 4]]>,
-    pub(crate) moments: Box<[AtomicMoments]>,
-    /// Per leaf (same index as `moments`): the second-moment sums of its four quadrants, from
-    /// the samples that landed in it (unfiltered).
+    /// Per leaf, `(Σ v/p, Σ v²/p)` with the filter's shares.
+    pub(crate) moments: Box<[AtomicSums]>,
+    /// Per leaf (same index as `moments`): the second-moment sums and counts of its four
+    /// quadrants, from the samples that landed in it (unfiltered); the leaf's count is theirs.
     pub(crate) quadrants: Box<[AtomicQuadrants]>,
     /// Per leaf, the quadrant sums [`DirectionalFilter::DeferredBox`] has yet to spread; empty
     /// under the other filters (and until [`defer`](Self::defer), when a deferred record
@@ -45,7 +46,7 @@ impl RecordingTree {
         }
         let mut tree = Self {
             nodes: nodes.into_boxed_slice(),
-            moments: (0..leaves).map(|_| AtomicMoments::default()).collect(),
+            moments: (0..leaves).map(|_| AtomicSums::default()).collect(),
             quadrants: (0..leaves).map(|_| AtomicQuadrants::default()).collect(),
             pending: Box::default(),
         };
@@ -127,7 +128,6 @@ impl RecordingTree {
             DirectionalFilter::Nearest | DirectionalFilter::DeferredBox => {
                 let (k, _, q) = self.locate(s);
                 if counted {
-                    self.moments[k].add_count();
                     self.quadrants[k].add(q, weights.1);
                 }
                 if filter == DirectionalFilter::Nearest {
@@ -144,7 +144,6 @@ impl RecordingTree {
     #[inline]
     pub(crate) fn count_sample(&self, s: Vec2, w2: f64) {
         let (k, _, q) = self.locate(s);
-        self.moments[k].add_count();
         self.quadrants[k].add(q, w2);
     }
 
@@ -167,7 +166,7 @@ impl RecordingTree {
     pub(crate) fn leaves(&self) -> Vec<(DirectionalCell, Moments)> {
         self.flush_pending();
         let mut out = Vec::new();
-        self.visit_leaves(|k, cell| out.push((cell, self.moments[k].get())));
+        self.visit_leaves(|k, cell| out.push((cell, self.moments_of(k))));
         out
     }
 
@@ -185,29 +184,51 @@ impl RecordingTree {
         }
     }
 
+    /// Leaf `k`'s moments: its sums and its quadrants' count.
+    pub(crate) fn moments_of(&self, k: usize) -> Moments {
+        self.exact_moments(k).moments()
+    }
+
+    /// Leaf `k`'s exact moments.
+    pub(crate) fn exact_moments(&self, k: usize) -> ExactMoments {
+        let (sum, sum_sq) = self.moments[k].exact();
+        ExactMoments {
+            sum,
+            sum_sq,
+            count: self.quadrants[k].count(),
+        }
+    }
+
     /// Total samples recorded into the tree (saturating: counts loaded from a file or merged
     /// from many workers may be arbitrarily large).
     pub(crate) fn count(&self) -> u64 {
-        self.moments
+        self.quadrants
             .iter()
-            .fold(0, |n, m| n.saturating_add(m.get().count))
+            .fold(0, |n, q| n.saturating_add(q.count()))
     }
 
     /// Zeroes every leaf's moments (their quadrant sums are not kept past an iteration).
     pub(crate) fn clear_moments(&mut self) {
         for m in self.moments.iter_mut() {
-            *m = AtomicMoments::default();
+            *m = AtomicSums::default();
         }
     }
 
-    /// Adds the moments and quadrant sums of `other`, a tree of the same topology (a merge;
-    /// pending sums spread first by the caller).
+    /// Adds the moments, quadrant sums and pending sums of `other`, a tree of the same
+    /// topology (a merge), exactly: pending sums stay pending, so that they spread at `refine`
+    /// as one machine's would.
     pub(crate) fn add(&mut self, other: &RecordingTree) {
+        if !other.pending.is_empty() {
+            self.defer();
+            for (x, y) in self.pending.iter_mut().zip(other.pending.iter()) {
+                x.add_exact(&y.exact());
+            }
+        }
         for (x, y) in self.moments.iter_mut().zip(other.moments.iter()) {
-            x.add_moments(y.get());
+            x.add_exact(y.exact());
         }
         for (x, y) in self.quadrants.iter_mut().zip(other.quadrants.iter()) {
-            x.add_quadrants(y.get());
+            x.add_exact(&y.exact());
         }
     }
 

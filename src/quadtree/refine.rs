@@ -329,10 +329,14 @@ impl RecordingTree {
     /// every leaf.
     #[inline]
     fn shrunk_moments(&self, prior_samples: f64) -> ShrunkMoments {
-        self.shrink(prior_samples, |k| {
-            let m = self.moments[k].get();
-            (m.sum, m.sum_sq, m.count)
-        })
+        // Read once: `shrink` visits every leaf twice, and a read converts exact sums.
+        let leaves: Vec<(f64, f64, u64)> = (0..self.moments.len())
+            .map(|k| {
+                let m = self.moments_of(k);
+                (m.sum, m.sum_sq, m.count)
+            })
+            .collect();
+        self.shrink(prior_samples, |k| leaves[k])
     }
 
     /// [`shrunk_moments`](Self::shrunk_moments) of any per-leaf sums `(S1, S2, n)`.
@@ -389,13 +393,15 @@ impl RecordingTree {
         let quadrants: Vec<_> = self.quadrants.iter().map(|q| q.get()).collect();
         // Every cell's second moment from the same unfiltered samples as the quadrant sums, so
         // that a cell's gain means the same whether it was a leaf or interior.
-        let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| {
-            quadrants[k]
-                .iter()
-                .fold((0.0, 0.0, 0), |(_, s2, n), &(s, c)| {
+        let per_leaf: Vec<(f64, f64, u64)> = quadrants
+            .iter()
+            .map(|q| {
+                q.iter().fold((0.0, 0.0, 0u64), |(_, s2, n), &(s, c)| {
                     (0.0, s2 + s, n.saturating_add(c))
                 })
-        });
+            })
+            .collect();
+        let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| per_leaf[k]);
         let root_of = |s2: f64, d: u32| (cell_area(d) * s2.max(0.0)).sqrt();
         let node_root: Vec<f64> = (0..self.nodes.len())
             .map(|i| root_of(shrunk.nodes[i].1, depth[i]))

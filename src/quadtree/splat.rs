@@ -6,7 +6,7 @@
 
 use super::{FIXED_BITS, LEAF_BIT, RecordingTree, cell_area, fixed, fixed_f64};
 use crate::filter::overlap;
-use crate::moments::AtomicMoments;
+use crate::moments::AtomicSums;
 use crate::sphere;
 use glam::Vec2;
 
@@ -147,7 +147,7 @@ impl Shares {
         }
     }
 
-    fn push(&mut self, moments: &[AtomicMoments], leaf: usize, part: (f64, f64)) {
+    fn push(&mut self, moments: &[AtomicSums], leaf: usize, part: (f64, f64)) {
         if self.len < Self::CAP {
             self.parts[self.len] = (leaf, part);
             self.len += 1;
@@ -157,13 +157,13 @@ impl Shares {
     }
 
     /// Loads the targets' words (see the type's doc); the result means nothing.
-    fn touch(&self, moments: &[AtomicMoments]) -> u64 {
+    fn touch(&self, moments: &[AtomicSums]) -> u64 {
         self.parts[..self.len]
             .iter()
             .fold(0, |t, &(leaf, _)| t ^ moments[leaf].touch())
     }
 
-    fn add(&self, moments: &[AtomicMoments]) {
+    fn add(&self, moments: &[AtomicSums]) {
         for &(leaf, part) in &self.parts[..self.len] {
             moments[leaf].add_sums(part);
         }
@@ -353,7 +353,6 @@ impl RecordingTree {
         });
         if counted {
             std::hint::black_box(self.touch(k, q) ^ shares.touch(&self.moments));
-            self.moments[k].add_count();
             self.quadrants[k].add(q, weights.1);
         } else {
             std::hint::black_box(shares.touch(&self.moments));

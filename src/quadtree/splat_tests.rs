@@ -126,7 +126,7 @@ fn recording_through_the_box_filter_hands_out_the_walks_shares() {
             tree.record(DirectionalFilter::Box, s, w, true);
         }
         for (j, e) in expected.iter().enumerate() {
-            let m = tree.moments[j].get();
+            let m = tree.moments_of(j);
             assert!(
                 (m.sum - e.0).abs() <= 1e-12 * total,
                 "seed {seed}, leaf {j}"
