@@ -113,8 +113,10 @@ mod exact;
 mod field;
 mod filter;
 mod guide_probability;
+mod image;
 mod merge;
 mod moments;
+mod path;
 mod quadtree;
 mod refinement;
 mod region;
@@ -142,8 +144,10 @@ pub use guide_probability::{
     DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
     MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
 };
+pub use image::{ImageStatistics, PixelSums};
 pub use merge::MergeError;
 pub use moments::Moments;
+pub use path::{PathRecord, PathRecorder, PathRecorderStats, PathVertex, TechniquePdfs, VertexId};
 pub use quadtree::DirectionalCell;
 pub use refinement::Refinement;
 pub use rule::LeafRule;

@@ -142,6 +142,12 @@ typedef struct sdg_distribution sdg_distribution;
 typedef struct sdg_field sdg_field;
 
 /*
+ A path recorder (opaque): one per render thread, reused for every camera sample. Create
+ with `sdg_path_create`; destroy with `sdg_path_destroy`. Not for two threads at once.
+ */
+typedef struct sdg_path sdg_path;
+
+/*
  A 3D vector (world space).
  */
 typedef struct {
@@ -403,6 +409,72 @@ typedef struct {
    */
   uint64_t clamped_samples;
 } sdg_stats;
+
+/*
+ A scattering vertex as the renderer pushes it (see `sdg_path_push`).
+ */
+typedef struct {
+  /*
+   The vertex.
+   */
+  sdg_vec3 position;
+  /*
+   Its shading normal, facing the side the path arrived from; read with
+   `SDG_SAMPLE_NORMAL` in `flags`.
+   */
+  sdg_vec3 normal;
+  /*
+   The direction drawn (any length).
+   */
+  sdg_vec3 direction;
+  /*
+   `f·|cos θ|` toward `direction`, per channel (0 below the surface).
+   */
+  sdg_vec3 bsdf;
+  /*
+   The density `direction` was drawn with: the mixture's `q`.
+   */
+  float pdf;
+  /*
+   The BSDF sampling pdf of `direction`; with `guide_pdf`, read with `SDG_SAMPLE_MIXTURE`
+   in `flags`.
+   */
+  float bsdf_pdf;
+  /*
+   The guide's pdf of `direction` (the product's where the renderer samples it).
+   */
+  float guide_pdf;
+  /*
+   `SDG_SAMPLE_NORMAL`, `SDG_SAMPLE_MIXTURE`, or'ed; 0 for none.
+   */
+  uint32_t flags;
+} sdg_path_vertex;
+
+/*
+ The recorder's counts of bad input (see the Rust `PathRecorderStats`).
+ */
+typedef struct {
+  /*
+   Paths finished.
+   */
+  uint64_t paths;
+  /*
+   Vertices pushed with bad input: kept, recording and passing on nothing.
+   */
+  uint64_t bad_vertices;
+  /*
+   Radiance, costs, probabilities, factors or handles that were ignored.
+   */
+  uint64_t bad_values;
+  /*
+   Vertices refused past the recorder's capacity.
+   */
+  uint64_t dropped_vertices;
+  /*
+   Paths that overflowed: they record nothing.
+   */
+  uint64_t truncated_paths;
+} sdg_path_stats;
 
 #ifdef __cplusplus
 extern "C" {
@@ -698,6 +770,109 @@ sdg_status sdg_field_refine(sdg_field *field);
  `field` must be null or valid; `out` null or valid for writes.
  */
 sdg_status sdg_field_stats(const sdg_field *field, sdg_stats *out);
+
+/*
+ Creates a recorder holding up to `max_vertices` vertices per camera sample (0: the
+ library's default, 4096), and stores its handle in `*out`.
+
+ # Safety
+ `out` must be null or valid for writing a pointer.
+ */
+sdg_status sdg_path_create(uint32_t max_vertices, sdg_path **out);
+
+/*
+ Destroys a recorder. Null is ignored.
+
+ # Safety
+ `path` must be null or a handle from `sdg_path_create`, not yet destroyed, that no other
+ thread is using.
+ */
+void sdg_path_destroy(sdg_path *path);
+
+/*
+ Starts a new camera sample and stores the handle of its camera ray in `*camera`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses; `camera` null or writable.
+ */
+sdg_status sdg_path_start(sdg_path *path, uint32_t *camera);
+
+/*
+ Radiance `radiance` arriving at vertex `at` along its direction: emission its ray hit (with
+ its MIS weight), or a next-event contribution at the vertex its ray reached. Negative or
+ non-finite values are ignored and counted.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses.
+ */
+sdg_status sdg_path_add_radiance(sdg_path *path, uint32_t at, sdg_vec3 radiance);
+
+/*
+ A cost (rays, say) spent tracing for vertex `at`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses.
+ */
+sdg_status sdg_path_add_cost(sdg_path *path, uint32_t at, float cost);
+
+/*
+ A direction drawn at the vertex the ray of `from` reached; stores its handle in `*out`. A
+ vertex with bad input is kept but records nothing; past the capacity the handle is a sink.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses; `vertex` null or valid; `out`
+ null or writable.
+ */
+sdg_status sdg_path_push(sdg_path *path,
+                         uint32_t from,
+                         const sdg_path_vertex *vertex,
+                         uint32_t *out);
+
+/*
+ Russian roulette on the path along `at`: it went on with `probability` if `survived`
+ (non-zero), else it ended; what arrives at `at` afterwards weighs `1/probability`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses.
+ */
+sdg_status sdg_path_roulette(sdg_path *path, uint32_t at, float probability, uint32_t survived);
+
+/*
+ Roulette or splitting at the vertex the ray of `at` reached: `traced` continuations for
+ `factor`, each pushed afterwards weighing `1/factor`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses.
+ */
+sdg_status sdg_path_split(sdg_path *path, uint32_t at, float factor, uint32_t traced);
+
+/*
+ Ends the camera sample and stores its estimate (the radiance along the camera ray) in
+ `*estimate`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses; `estimate` null or writable.
+ */
+sdg_status sdg_path_finish(sdg_path *path, sdg_vec3 *estimate);
+
+/*
+ Records the finished camera sample into `field` (every vertex's sample and continuation)
+ and stores how many vertices it recorded in `*recorded` (which may be null). Takes the
+ field's lock shared, like `sdg_field_record`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses; `field` null or valid;
+ `recorded` null or writable.
+ */
+sdg_status sdg_path_record(sdg_path *path, const sdg_field *field, size_t *recorded);
+
+/*
+ Stores the recorder's counts of bad input in `*out`.
+
+ # Safety
+ `path` must be null or a live handle no other thread uses; `out` null or writable.
+ */
+sdg_status sdg_path_stats(sdg_path *path, sdg_path_stats *out);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -24,7 +24,7 @@
 //!
 //! One module per object: `config` (`sdg_config` and its one conversion each way), `types`
 //! (vectors, samples, continuations, the splitting policy), `field` and `distribution` (the two
-//! handles), `batch` (the field's queries over arrays, for wavefront renderers), `cache` (save,
+//! handles), `path` (the path recorder, one per render thread), `batch` (the field's queries over arrays, for wavefront renderers), `cache` (save,
 //! load, merge), `lock` (the field's lock), `error` (status codes and the checks every entry
 //! point shares). An optional field of a C struct is said to be present
 //! one way only: its bit in the struct's `flags` (`SDG_SAMPLE_*`, `SDG_CONFIG_*`).
@@ -42,6 +42,7 @@ mod distribution;
 mod error;
 mod field;
 mod lock;
+mod path;
 mod types;
 
 pub use batch::*;
@@ -50,4 +51,5 @@ pub use config::*;
 pub use distribution::*;
 pub use error::*;
 pub use field::*;
+pub use path::*;
 pub use types::*;

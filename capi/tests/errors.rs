@@ -794,3 +794,88 @@ fn batch_calls_are_the_one_vertex_calls_and_refuse_bad_lanes() {
         sdg_field_destroy(f);
     }
 }
+
+#[test]
+fn the_path_recorder_records_a_path_and_refuses_bad_calls() {
+    let f = field();
+    let mut path = null_mut();
+    // SAFETY: valid pointers throughout; null ones are the point of the checks.
+    unsafe {
+        assert_eq!(sdg_path_create(0, &mut path), sdg_status::Ok);
+        assert_eq!(sdg_path_create(0, null_mut()), sdg_status::NullPointer);
+        let mut camera = u32::MAX;
+        assert_eq!(sdg_path_start(path, &mut camera), sdg_status::Ok);
+        assert_eq!(camera, 0);
+        // A floor vertex drawing up (f·cos 0.2, pdf 0.5), roulette 0.5 survived, a lamp of 1.
+        let vertex = sdg_path_vertex {
+            position: v(0.5, 0.1, 0.5),
+            normal: v(0.0, 1.0, 0.0),
+            direction: v(0.0, 1.0, 0.0),
+            bsdf: v(0.2, 0.2, 0.2),
+            pdf: 0.5,
+            bsdf_pdf: 0.4,
+            guide_pdf: 0.6,
+            flags: SDG_SAMPLE_MIXTURE | SDG_SAMPLE_NORMAL,
+        };
+        let mut id = 0;
+        assert_eq!(
+            sdg_path_push(path, camera, &vertex, &mut id),
+            sdg_status::Ok
+        );
+        assert_eq!(id, 1);
+        assert_eq!(sdg_path_roulette(path, id, 0.5, 1), sdg_status::Ok);
+        assert_eq!(
+            sdg_path_add_radiance(path, id, v(1.0, 1.0, 1.0)),
+            sdg_status::Ok
+        );
+        assert_eq!(
+            sdg_path_add_radiance(path, id, v(f32::NAN, 1.0, 1.0)),
+            sdg_status::Ok
+        );
+        assert_eq!(sdg_path_add_cost(path, id, 1.0), sdg_status::Ok);
+        assert_eq!(sdg_path_split(path, 7, 2.0, 2), sdg_status::Ok); // an unknown handle
+        let mut estimate = sdg_vec3::default();
+        assert_eq!(sdg_path_finish(path, &mut estimate), sdg_status::Ok);
+        assert!(
+            (estimate.x - 0.2 / 0.5 * 1.0 / 0.5).abs() < 1e-6,
+            "{estimate:?}"
+        );
+        let mut recorded = 0;
+        assert_eq!(sdg_path_record(path, f, &mut recorded), sdg_status::Ok);
+        assert_eq!(recorded, 1);
+        assert_eq!(
+            sdg_path_record(path, null(), &mut recorded),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_path_push(path, 0, null(), &mut id),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_path_finish(null_mut(), &mut estimate),
+            sdg_status::NullPointer
+        );
+        assert_eq!(
+            sdg_path_add_radiance(null_mut(), 0, v(1.0, 1.0, 1.0)),
+            sdg_status::NullPointer
+        );
+        let mut stats = sdg_path_stats::default();
+        assert_eq!(sdg_path_stats(path, &mut stats), sdg_status::Ok);
+        assert_eq!(
+            (stats.paths, stats.bad_values, stats.bad_vertices),
+            (1, 2, 0)
+        );
+        let mut field_stats = sdg_stats::default();
+        assert_eq!(sdg_field_stats(f, &mut field_stats), sdg_status::Ok);
+        assert_eq!(
+            (
+                field_stats.samples_recorded,
+                field_stats.continuations_recorded
+            ),
+            (1, 1)
+        );
+        sdg_path_destroy(path);
+        sdg_path_destroy(null_mut());
+        sdg_field_destroy(f);
+    }
+}

@@ -7,7 +7,6 @@
 //! ([`Backend::record`]), and between training passes the render refines it
 //! ([`Backend::refine`]).
 
-use crate::sampler::MixturePdf;
 use glam::{Vec2, Vec3};
 use sdguide::{ContinuationEstimate, GuidingField, Sample, SurfaceDistribution};
 
@@ -28,8 +27,9 @@ pub trait Backend: Sync {
         false
     }
 
-    /// Records one vertex of a training path.
-    fn record(&self, vertex: &Recorded);
+    /// Records one vertex of a training path: its sample (as the path recorder builds it),
+    /// and how far its direction reached before it hit something (infinite if nothing).
+    fn record(&self, sample: &Sample, distance: f32);
 
     /// Rebuilds the distributions from what was recorded (between passes).
     fn refine(&mut self);
@@ -56,30 +56,6 @@ pub trait VertexGuide {
     }
 }
 
-/// One recorded vertex: at `position` (shading normal `normal`, the one the guide was queried
-/// with), the radiance `incident` (a luminance) arrived along `direction`, drawn with `pdf`;
-/// `second_moment` estimates its square without roulette, `integrand` is `f·L_i` there, and
-/// `distance` is how far the direction reached (Open PGL's parallax compensation).
-#[derive(Clone, Copy, Debug)]
-pub struct Recorded {
-    /// The vertex.
-    pub position: Vec3,
-    /// Its shading normal.
-    pub normal: Vec3,
-    /// The sampled direction.
-    pub direction: Vec3,
-    /// The pdfs of the direction.
-    pub pdf: MixturePdf,
-    /// The luminance that arrived along it.
-    pub incident: f32,
-    /// The estimate of `incident²` without roulette.
-    pub second_moment: f32,
-    /// `f·L_i`, the luminance of the integrand at the direction.
-    pub integrand: f32,
-    /// How far the direction reached (infinite if it left the scene).
-    pub distance: f32,
-}
-
 impl Backend for GuidingField {
     type Vertex<'a> = SurfaceDistribution<'a>;
 
@@ -88,18 +64,8 @@ impl Backend for GuidingField {
         Some(self.distribution(position).at_surface(normal))
     }
 
-    fn record(&self, v: &Recorded) {
-        let sample = Sample {
-            position: v.position,
-            direction: v.direction,
-            value: v.incident,
-            pdf: v.pdf.mixture,
-            normal: Some(v.normal),
-            second_moment: Some(v.second_moment),
-            ..Sample::default()
-        }
-        .with_mixture(v.integrand, v.pdf.bsdf, v.pdf.guide);
-        GuidingField::record(self, &sample);
+    fn record(&self, sample: &Sample, _distance: f32) {
+        GuidingField::record(self, sample);
     }
 
     fn refine(&mut self) {
@@ -145,7 +111,7 @@ impl Backend for Unguided {
         None
     }
 
-    fn record(&self, _: &Recorded) {}
+    fn record(&self, _: &Sample, _: f32) {}
 
     fn refine(&mut self) {}
 }

@@ -17,30 +17,35 @@
 //!    samples the BSDF alone;
 //! 2. sample from the mixture, and evaluate the *mixture* pdf `q` — for the direction sampled
 //!    and for every next-event direction, since MIS must weigh the strategy actually used;
-//! 3. a continuation's value is the radiance arriving along its direction, every later
-//!    roulette and splitting weight included: what the recursive call returns;
-//! 4. when it returns, record the vertex: position, direction, the luminance of that incident
-//!    radiance, the mixture pdf, and the mixture terms the guide probability learns from.
-//!    Between training passes the caller refines the field (no thread may render then).
+//! 3. tell the path recorder ([`sdguide::PathRecorder`], one per thread) what happens, as it
+//!    happens: each vertex's direction (`push`: position, normal, direction, `f·cos`, the
+//!    mixture pdf and the two techniques' pdfs), the radiance arriving along a vertex's ray
+//!    (`add_radiance`: emission with its MIS weight, next-event contributions), the roulette
+//!    or splitting played (`roulette`, `split`), and the rays traced (`add_cost`);
+//! 4. once the camera sample is done, `finish` gives its estimate and the recorder every
+//!    vertex's training sample — the radiance that arrived along its direction with every
+//!    later weight, its square without roulette, the mixture terms — and its continuation,
+//!    which go into the field. Between training passes the caller refines the field (no
+//!    thread may render then).
 //!
 //! With roulette and splitting ([`Continuations`]), each vertex asks the factor of its cell's
 //! continuation estimate, traces that many continuations in expectation, weighs each by its
-//! inverse, and records every one it traced as a `Continuation` (its estimate of the reflected
-//! light and the rays it cost).
+//! inverse (the recorder applies the weights), and records every one it traced as a
+//! `Continuation` (its estimate of the reflected light and the rays it cost).
 //!
 //! The integrator is generic over the guiding [`Backend`]: with the `openpgl` feature the same
 //! four points serve Intel Open PGL:
 //! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
 //! place, so that the two libraries are compared in one renderer.
 
-use crate::backend::{Backend, Recorded, VertexGuide};
+use crate::backend::{Backend, VertexGuide};
 use crate::geometry::{Frame, Ray};
 use crate::material::luminance;
 use crate::rng::Rng;
 use crate::sampler::VertexSampler;
 use crate::scene::Scene;
 use glam::Vec3;
-use sdguide::{Continuation, GuidingField, Splitting, continuations};
+use sdguide::{GuidingField, PathRecorder, PathVertex, Splitting, VertexId, continuations};
 
 /// Longest path, in scattering events.
 pub const MAX_DEPTH: usize = 10;
@@ -115,6 +120,14 @@ pub struct PathSample {
     pub rays: u32,
 }
 
+/// A render thread's scratch: the path recorder, and how far each recorded direction reached
+/// (what Open PGL's parallax compensation needs), by vertex.
+#[derive(Default)]
+pub struct Scratch {
+    path: PathRecorder,
+    distances: Vec<f32>,
+}
+
 /// The radiance arriving along `ray` (one path sample), guided when `guiding` is given, with
 /// classic roulette.
 pub fn radiance<B: Backend>(
@@ -123,7 +136,15 @@ pub fn radiance<B: Backend>(
     ray: Ray,
     rng: &mut Rng,
 ) -> Vec3 {
-    path_sample(scene, guiding, (Roulette::Classic, None), ray, rng).radiance
+    let mut scratch = Scratch::default();
+    path_sample(
+        scene,
+        guiding,
+        (Roulette::Classic, None),
+        ray,
+        (rng, &mut scratch),
+    )
+    .radiance
 }
 
 /// The radiance arriving along `ray` and its cost, guided when `guiding` is given, with
@@ -134,12 +155,14 @@ pub fn path_sample<B: Backend>(
     guiding: Option<Guiding<'_, B>>,
     (roulette, continuations): (Roulette, Option<(&Continuations<'_>, usize)>),
     ray: Ray,
-    rng: &mut Rng,
+    (rng, scratch): (&mut Rng, &mut Scratch),
 ) -> PathSample {
     let policy = continuations.and_then(|(c, pixel)| {
         let splitting = c.splitting?;
         Some((splitting, *c.pixels.get(pixel)?))
     });
+    let camera = scratch.path.start();
+    scratch.distances.clear();
     let mut path = Path {
         scene,
         guiding,
@@ -147,13 +170,30 @@ pub fn path_sample<B: Backend>(
         policy,
         roulette,
         rng,
+        scratch,
         rays: 0,
     };
-    let radiance = path.trace(ray, 0, Vec3::ONE, None).radiance;
-    PathSample {
-        radiance,
-        rays: path.rays,
+    path.trace(ray, 0, Vec3::ONE, None, camera);
+    let rays = path.rays;
+    // GUIDING (4): the path is done; the recorder hands back every vertex's training sample
+    // (the radiance that arrived along its direction, its second moment without roulette,
+    // the mixture terms) and its continuation.
+    let Scratch { path, distances } = scratch;
+    let radiance = path.finish();
+    let samples = guiding.filter(|g| g.record);
+    let continuations = continuations.filter(|(c, _)| c.record);
+    if samples.is_some() || continuations.is_some() {
+        for r in path.records() {
+            if let Some(g) = samples {
+                let distance = distances.get(r.id.index()).copied();
+                g.field.record(&r.sample, distance.unwrap_or(f32::INFINITY));
+            }
+            if let Some((c, _)) = continuations {
+                c.field.record_continuation(&r.continuation);
+            }
+        }
     }
+    PathSample { radiance, rays }
 }
 
 /// One camera sample's tree of continuations, traced depth first.
@@ -166,85 +206,31 @@ struct Path<'s, 'a, B: Backend> {
     /// The roulette where no policy decides.
     roulette: Roulette,
     rng: &'s mut Rng,
+    scratch: &'s mut Scratch,
     rays: u32,
 }
 
-/// What a ray brought back.
-struct Traced {
-    /// The radiance arriving along it.
-    radiance: Vec3,
-    /// Distance to its first hit (infinite if none).
-    distance: f32,
-    /// The first roulette the path played below the ray.
-    roulette: FirstRoulette,
-}
-
-/// The first Russian roulette a path played below a ray or a direction (classic, or by an
-/// efficiency-aware factor below 1), and the part of the radiance that arrived along it before
-/// that roulette: what a vertex needs for the estimate of its value's square without that
-/// roulette (`Sample::second_moment`).
-#[derive(Clone, Copy, Debug)]
-struct FirstRoulette {
-    /// The radiance added before the roulette (all of it where none was played).
-    before: Vec3,
-    /// The probability of going on (1 where none was played).
-    probability: f32,
-    /// Whether the path went on.
-    survived: bool,
-}
-
-impl FirstRoulette {
-    /// No roulette below: all of `radiance` came before it.
-    fn none(radiance: Vec3) -> Self {
-        FirstRoulette {
-            before: radiance,
-            probability: 1.0,
-            survived: true,
-        }
-    }
-
-    /// An unbiased estimate of what the square of `value` (a luminance that this roulette, if
-    /// any, weighed) would be without the roulette: `(Y² − (1 − s)·A²)/s` where the path
-    /// survived, `Y = A + s·(value − A)` the value without the roulette's `1/s`, and `A²` where
-    /// it ended (`A` what came before, `s` the probability). Its expectation over the
-    /// roulette's coin is `(A + B)²`, with `B` what the path would have brought after it.
-    fn second_moment(self, value: f32) -> f32 {
-        let (a, s) = (luminance(self.before), self.probability);
-        if s >= 1.0 {
-            return value * value;
-        }
-        if !self.survived {
-            return a * a;
-        }
-        let y = a + s * (value - a);
-        ((y * y - (1.0 - s) * a * a) / s).max(0.0)
-    }
-}
-
 impl<'a, B: Backend> Path<'_, 'a, B> {
-    /// The radiance arriving along `ray`, which leaves the path's `depth`-th scattering event
-    /// with throughput `beta` from the camera (every roulette and splitting weight included);
-    /// `previous` is the pdf the ray's direction was drawn with and where (`None` for a camera
-    /// ray or after a dielectric).
+    /// Traces `ray`, the ray of the recorded vertex `owner`, which leaves the path's
+    /// `depth`-th scattering event with throughput `beta` from the camera (every roulette and
+    /// splitting weight included), and tells the recorder what arrives along it; `previous`
+    /// is the pdf the ray's direction was drawn with and where (`None` for a camera ray or
+    /// after a dielectric). Returns the distance to its first hit (infinite if none).
     fn trace(
         &mut self,
         mut ray: Ray,
         mut depth: usize,
         beta: Vec3,
         mut previous: Option<(Vec3, f32)>,
-    ) -> Traced {
+        owner: VertexId,
+    ) -> f32 {
         let scene = self.scene;
         let guide = self.guiding.map(|g| g.field);
         let mut first_hit = None;
-        let mut l = Vec3::ZERO;
         loop {
-            self.rays += 1;
+            self.ray(owner);
             let Some(hit) = scene.intersect(&ray) else {
-                return Traced {
-                    radiance: l,
-                    distance: first_hit.unwrap_or(f32::INFINITY),
-                    roulette: FirstRoulette::none(l),
-                };
+                return first_hit.unwrap_or(f32::INFINITY);
             };
             let distance = *first_hit.get_or_insert(hit.t);
             let wo = -ray.direction;
@@ -256,22 +242,18 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                     }
                     _ => 1.0,
                 };
-                l += emitted * weight;
+                self.scratch.path.add_radiance(owner, emitted * weight);
             }
             if depth == MAX_DEPTH {
-                return Traced {
-                    radiance: l,
-                    distance,
-                    roulette: FirstRoulette::none(l),
-                };
+                return distance;
             }
             let material = scene.material(&hit);
             let normal = hit.normal_toward(wo);
             if material.is_dielectric() {
                 // A delta vertex: no light sample reaches through it and no guide can sample
                 // it, so the path goes on in the one direction Fresnel picks, with weight 1,
-                // and the vertex is not recorded; the vertex before it records the radiance
-                // arriving through the glass, which is what a guide there learns to aim at.
+                // and the vertex is not recorded; what arrives through the glass arrives along
+                // `owner`'s ray, which is what a guide there learns to aim at.
                 let frame = Frame::new(normal);
                 let entering = hit.normal.dot(wo) > 0.0;
                 let local =
@@ -316,19 +298,20 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                 if f != Vec3::ZERO {
                     let shadow =
                         Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
-                    self.rays += 1;
+                    self.ray(owner);
                     if !scene.occluded(&shadow) {
                         let weight =
                             power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
-                        l += f * light.radiance * (weight / light.pdf);
+                        let l = f * light.radiance * (weight / light.pdf);
+                        self.scratch.path.add_radiance(owner, l);
                     }
                 }
             }
 
             // How many continuations, each weighed by 1/q: the efficiency-aware factor where
             // the cell has an estimate, else one, under classic roulette.
-            let factor = self.policy.and_then(|(splitting, pixel)| {
-                let field = self.continuations?.field;
+            let policy = self.policy.zip(self.continuations.map(|c| c.field));
+            let factor = policy.and_then(|((splitting, pixel), field)| {
                 // The guide's view of the same field already holds its cell's estimate: no
                 // second lookup.
                 let same = guide
@@ -340,7 +323,8 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                     .filter(|_| same)
                     .and_then(VertexGuide::continuation)
                     .unwrap_or_else(|| field.continuation(hit.position));
-                let q = splitting.factor(&estimate, luminance(beta), pixel)?;
+                let path = &mut self.scratch.path;
+                let q = path.factor(&splitting, &estimate, luminance(beta), pixel)?;
                 // The camera vertex only plays roulette: there the rest of the image, which the
                 // factor takes to be the whole image, is mostly this vertex's own continuations,
                 // so every factor is its own fixed point and estimation noise alone sets it
@@ -353,46 +337,36 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                 })
             });
             let (n, weight) = match factor {
-                Some(q) => continuations(q, self.rng.next_f32()),
+                Some(q) => {
+                    let (n, weight) = continuations(q, self.rng.next_f32());
+                    self.scratch.path.split(owner, q, n);
+                    (n, weight)
+                }
                 None => (1, 1.0),
             };
-            let before = l;
-            let mut below = None;
             for _ in 0..n {
-                let (reflected, roulette) =
-                    self.continue_from(&hit, &sampler, depth, beta * weight, factor.is_none());
-                l += weight * reflected;
-                below = Some(roulette);
+                self.continue_from(
+                    &hit,
+                    &sampler,
+                    depth,
+                    beta * weight,
+                    factor.is_none(),
+                    owner,
+                );
             }
-            // The first roulette below the ray: this vertex's own where its factor played
-            // one, with all it gathered before; else, below its one continuation of weight 1,
-            // the first one below that. Below a split vertex none is tracked.
-            let roulette = match (factor, below) {
-                (Some(q), _) if q < 1.0 => FirstRoulette {
-                    before,
-                    probability: q,
-                    survived: n == 1,
-                },
-                (q, Some(r)) if q.is_none_or(|q| q == 1.0) => FirstRoulette {
-                    before: before + r.before,
-                    ..r
-                },
-                _ => FirstRoulette::none(l),
-            };
-            return Traced {
-                radiance: l,
-                distance,
-                roulette,
-            };
+            return distance;
         }
     }
 
-    /// One continuation from a vertex: a direction from its sampler and the radiance along it;
-    /// returns the continuation's estimate of the light the vertex reflects, `f·L_i/q`, and the
-    /// first roulette below it (what it reflected before that, in the same units).
-    /// With `classic` (no splitting policy decides), the path then meets the path's
-    /// [`Roulette`].
-    /// The guide's sample and the continuation are recorded when the pass records.
+    /// One ray traced for `owner`: counted, and its cost recorded.
+    fn ray(&mut self, owner: VertexId) {
+        self.rays += 1;
+        self.scratch.path.add_cost(owner, 1.0);
+    }
+
+    /// One continuation from the vertex that the ray of `owner` reached: a direction from its
+    /// sampler, pushed to the recorder, and the radiance along it. With `classic` (no
+    /// splitting policy decides), the path then meets the path's [`Roulette`].
     fn continue_from(
         &mut self,
         hit: &crate::scene::Hit,
@@ -400,14 +374,19 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
         depth: usize,
         beta: Vec3,
         classic: bool,
-    ) -> (Vec3, FirstRoulette) {
-        let rays_before = self.rays;
+        owner: VertexId,
+    ) {
         let Some(s) = sampler.sample(self.rng) else {
-            return (Vec3::ZERO, FirstRoulette::none(Vec3::ZERO));
+            return;
         };
         let f = sampler.bsdf_cos(s.direction);
-        let factor = f / s.pdf.mixture;
-        let beta = beta * factor;
+        let beta = beta * (f / s.pdf.mixture);
+        // GUIDING (3): push the vertex — its position and normal, the direction, `f·cos`, the
+        // mixture pdf and the two techniques' pdfs.
+        let vertex = PathVertex::new(hit.position, s.direction, f, s.pdf.mixture)
+            .with_normal(sampler.frame.normal())
+            .with_mixture(s.pdf.bsdf, s.pdf.guide);
+        let v = self.scratch.path.push(owner, vertex);
         // Classic roulette decides after the direction is drawn, so a vertex it ends still
         // records its direction (with zero radiance): the recorded radiance, 1/survive times
         // what arrived or nothing, is unbiased whatever the direction.
@@ -417,94 +396,31 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             } else {
                 1.0
             };
-        // GUIDING (3): a guide direction below the surface (f = 0) ends the continuation, and
-        // is recorded too, with zero radiance: the field learns that nothing this vertex can
-        // use comes from there. Not recording it would leave those cells without samples, and
-        // a cell without samples borrows its parent's estimate (the field's shrinkage), which
-        // would keep sending half the guide's samples into the surface.
-        // The roulette below the direction, as seen from this vertex: its own, if it played
-        // one, with nothing before it; else the first one the traced path played.
-        let own = |survived| FirstRoulette {
-            before: Vec3::ZERO,
-            probability: survive,
-            survived,
-        };
-        let (incident, distance, roulette) = if f == Vec3::ZERO {
-            (Vec3::ZERO, f32::INFINITY, FirstRoulette::none(Vec3::ZERO))
-        } else if self.rng.next_f32() >= survive {
-            (Vec3::ZERO, f32::INFINITY, own(false))
-        } else {
-            let ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
-            let t = self.trace(
-                ray,
-                depth + 1,
-                beta / survive,
-                Some((hit.position, s.pdf.mixture)),
-            );
-            let roulette = if survive < 1.0 { own(true) } else { t.roulette };
-            (t.radiance / survive, t.distance, roulette)
-        };
-        let reflected = factor * incident;
-        if let Some(g) = self.guiding.filter(|g| g.record) {
-            // GUIDING (4): record the vertex: position, direction, the luminance of the
-            // incident radiance, the mixture pdf, and the mixture terms the guide probability
-            // learns from.
-            let integrand = luminance(f * incident);
-            let value = luminance(incident);
-            g.field.record(&Recorded {
-                position: hit.position,
-                normal: sampler.frame.normal(),
-                direction: s.direction,
-                pdf: s.pdf,
-                incident: value,
-                second_moment: roulette.second_moment(value),
-                integrand,
-                distance,
-            });
+        // A guide direction below the surface (f = 0) ends the continuation, and is recorded
+        // too, with zero radiance: the field learns that nothing this vertex can use comes
+        // from there. Not recording it would leave those cells without samples, and a cell
+        // without samples borrows its parent's estimate (the field's shrinkage), which would
+        // keep sending half the guide's samples into the surface.
+        if f == Vec3::ZERO {
+            return;
         }
-        if let Some(c) = self.continuations.filter(|c| c.record) {
-            c.field.record_continuation(&Continuation {
-                position: hit.position,
-                value: luminance(reflected),
-                cost: (self.rays - rays_before) as f32,
-            });
+        if self.rng.next_f32() >= survive {
+            self.scratch.path.roulette(v, survive, false);
+            return;
         }
-        let roulette = FirstRoulette {
-            before: factor * roulette.before,
-            ..roulette
-        };
-        (reflected, roulette)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Over the roulette's coin, the estimate of the square has the expectation of the square
-    /// without the roulette, `(A + B)²`, whatever the probability: the property that keeps the
-    /// guide's second moment from following its own pdf.
-    #[test]
-    fn the_roulette_free_square_is_unbiased() {
-        for (a, b) in [(0.0f32, 2.0f32), (0.7, 0.0), (0.4, 1.3), (3.0, 0.05)] {
-            for s in [0.05f32, 0.3, 0.5, 0.95] {
-                let roulette = |survived| FirstRoulette {
-                    before: Vec3::splat(a),
-                    probability: s,
-                    survived,
-                };
-                // What the vertex records: everything before, and `1/s` times what came after.
-                let survived = roulette(true).second_moment(a + b / s);
-                let ended = roulette(false).second_moment(a);
-                let expected = (a + b) * (a + b);
-                let mean = s * survived + (1.0 - s) * ended;
-                assert!(
-                    (mean - expected).abs() <= 1e-5 * expected.max(1.0),
-                    "A = {a}, B = {b}, s = {s}: {mean} against {expected}"
-                );
-            }
+        self.scratch.path.roulette(v, survive, true);
+        let ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
+        let distance = self.trace(
+            ray,
+            depth + 1,
+            beta / survive,
+            Some((hit.position, s.pdf.mixture)),
+            v,
+        );
+        let distances = &mut self.scratch.distances;
+        if distances.len() <= v.index() {
+            distances.resize(v.index() + 1, f32::INFINITY);
         }
-        // Without a roulette the square is the value's.
-        assert_eq!(FirstRoulette::none(Vec3::ONE).second_moment(3.0), 9.0);
+        distances[v.index()] = distance;
     }
 }

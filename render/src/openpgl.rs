@@ -12,7 +12,7 @@
 //! so a vertex costs an `Init`, not an allocation.
 #![allow(unsafe_code)]
 
-use crate::backend::{Backend, Recorded, VertexGuide};
+use crate::backend::{Backend, VertexGuide};
 use glam::{Vec2, Vec3};
 use sdguide::Aabb;
 use std::cell::RefCell;
@@ -470,15 +470,15 @@ impl Backend for Guide {
         true
     }
 
-    fn record(&self, v: &Recorded) {
+    fn record(&self, sample: &sdguide::Sample, distance: f32) {
         Guide::record(
             self,
             &[Record {
-                position: v.position,
-                direction: v.direction,
-                radiance: v.incident,
-                pdf: v.pdf.mixture,
-                distance: v.distance,
+                position: sample.position,
+                direction: sample.direction,
+                radiance: sample.value,
+                pdf: sample.pdf,
+                distance,
             }],
         );
     }

@@ -4,7 +4,7 @@
 
 use crate::backend::Backend;
 use crate::image::Image;
-use crate::integrator::{Continuations, Guiding, Roulette, path_sample};
+use crate::integrator::{Continuations, Guiding, Roulette, Scratch, path_sample};
 use crate::material::luminance;
 use crate::passes::{PassImage, PixelEstimates, splitting};
 use crate::rng::Rng;
@@ -91,6 +91,7 @@ fn render_samples<B: Backend>(
         .par_iter()
         .map(|&(x0, y0)| {
             let mut out = Vec::with_capacity(TILE * TILE);
+            let mut scratch = Scratch::default();
             let mut rays = 0.0;
             for y in y0..(y0 + TILE).min(height) {
                 for x in x0..(x0 + TILE).min(width) {
@@ -107,7 +108,7 @@ fn render_samples<B: Backend>(
                             guiding,
                             (roulette, continuations.map(|c| (c, index))),
                             ray,
-                            &mut rng,
+                            (&mut rng, &mut scratch),
                         );
                         rays += f64::from(sample.rays);
                         let l = sample.radiance;
