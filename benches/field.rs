@@ -15,8 +15,8 @@
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec2, Vec3};
 use sdguide::{
-    Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
-    SpatialFilter,
+    Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, PathRecorder,
+    PathVertex, Refinement, Sample, SpatialFilter,
 };
 use sdguide_lab::rng::Rng;
 use sdguide_lab::synthetic::{LightField, Workload, room_bounds, room_point, room_vertex};
@@ -140,6 +140,26 @@ fn bench_record(c: &mut Criterion) {
         b.iter(|| {
             for c in black_box(&continuations) {
                 field.record_continuation(c);
+            }
+        })
+    });
+    // The same vertices through the path recorder, as 8-vertex paths with mixture terms and
+    // their continuations: what a renderer's record costs with the recorder's bookkeeping,
+    // against "with mixture terms" plus "continuation" above.
+    let mut path = PathRecorder::new();
+    g.bench_function("1-thread, path recorder, 8-vertex paths", |b| {
+        b.iter(|| {
+            for chunk in black_box(&batch).chunks(8) {
+                let mut v = path.start();
+                for s in chunk {
+                    let vertex = PathVertex::new(s.position, s.direction, Vec3::splat(0.3), s.pdf)
+                        .with_mixture(0.3, s.pdf);
+                    v = path.push(v, vertex);
+                    path.add_radiance(v, Vec3::splat(s.value));
+                    path.add_cost(v, 2.0);
+                }
+                path.finish();
+                path.record(&field);
             }
         })
     });

@@ -7,8 +7,8 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::{
-    Aabb, Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement,
-    Sample, SpatialFilter,
+    Aabb, Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, PathRecorder,
+    PathVertex, Refinement, Sample, SpatialFilter, VertexId,
 };
 
 /// At most this many operations, refines and save–load round trips per input, and a memory
@@ -52,7 +52,7 @@ pub fn field_ops(data: &[u8]) {
     let (mut refines, mut round_trips) = (0, 0);
     for _ in 0..MAX_OPS {
         let Some(op) = b.u8() else { break };
-        match op % 7 {
+        match op % 8 {
             // Record a sample, possibly many times.
             0 | 1 => {
                 let (Some(p), Some(d), Some(v), Some(pdf), Some(n)) =
@@ -125,12 +125,64 @@ pub fn field_ops(data: &[u8]) {
                     cost,
                 });
             }
+            // A path through the recorder: arbitrary events on arbitrary handles, then recorded.
+            6 => {
+                let Some(events) = b.u8() else { break };
+                path_ops(&mut b, &field, events % 32);
+            }
             _ => {
                 let s = field.stats();
                 assert!(s.spatial_nodes <= u64::from(field.config().max_spatial_nodes));
             }
         }
     }
+}
+
+/// `events` path-recorder calls from fuzz bytes on a small recorder (8 vertices, so that
+/// overflow is reached), each on a handle the bytes pick (valid or not); then the path is
+/// finished and recorded into `field`.
+fn path_ops(b: &mut Bytes<'_>, field: &GuidingField, events: u8) {
+    let mut path = PathRecorder::with_max_vertices(8);
+    let mut ids = vec![path.start()];
+    for _ in 0..events {
+        let (Some(kind), Some(pick), Some(x), Some(w), Some(f)) =
+            (b.u8(), b.u8(), b.vec3(), b.vec3(), b.f32())
+        else {
+            break;
+        };
+        let at = match pick {
+            255 => VertexId::from_index(u32::from(pick)),
+            _ => ids[usize::from(pick) % ids.len()],
+        };
+        match kind % 6 {
+            0 => {
+                let v = PathVertex::new(x, w, w.abs(), f).with_normal(x);
+                ids.push(path.push(
+                    at,
+                    if kind & 0x80 != 0 {
+                        v.with_mixture(f, f)
+                    } else {
+                        v
+                    },
+                ));
+            }
+            1 => ids.push(path.push_delta(at, x, w)),
+            2 => path.add_radiance(at, w),
+            3 => path.roulette(at, f, kind & 0x80 != 0),
+            4 => path.split(at, f, u32::from(kind >> 4)),
+            _ => path.add_cost(at, f),
+        }
+    }
+    let estimate = path.finish();
+    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+    assert_eq!(
+        bits(path.finish()),
+        bits(estimate),
+        "finish twice: the same estimate"
+    );
+    let records = path.records().count();
+    assert!(records < 8, "at most the vertices a path holds");
+    assert_eq!(path.record(field), records);
 }
 
 /// A field from fuzz bytes: every configuration field and the bounds are arbitrary (the memory

@@ -2,8 +2,7 @@
 
 use crate::filter::{DirectionalFilter, SpatialFilter};
 use crate::guide_probability::{
-    DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
-    MAX_GUIDE_PROBABILITY,
+    DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST, MAX_GUIDE_PROBABILITY,
 };
 use crate::refinement::Refinement;
 use crate::rule::LeafRule;
@@ -95,14 +94,17 @@ pub struct GuidingConfig {
     /// `[0.5, `[`MAX_GUIDE_PROBABILITY`](crate::MAX_GUIDE_PROBABILITY)`]`.
     pub max_guide_probability: f32,
     /// What sampling the guide adds to the cost of a path vertex, relative to a vertex that
-    /// samples only the BSDF (default `Some(0.25)`, measured in the demo renderer). A spatial leaf whose guide does not
+    /// samples only the BSDF; default `None`: every guide stays on. A spatial leaf whose guide does not
     /// lower the variance of its vertices' estimates below `1/(1 + guide_cost)` of BSDF
     /// sampling's turns the guide off: its guide probability reads 0 until an iteration's
     /// samples show the guide paying again. A leaf where continuations were recorded
     /// ([`GuidingField::record_continuation`](crate::GuidingField::record_continuation))
-    /// keeps its guide on. Set it to what a guided vertex costs in your
-    /// renderer (less where shading is expensive); `Some(0.0)` turns the guide off only where
-    /// it does not lower the variance at all, `None` never. Must be finite and in `[0, 100]`.
+    /// keeps its guide on. Set it only to what a guided vertex was measured to cost in your
+    /// renderer: render a pass with the guide probability fixed at 0 and one with the learned
+    /// one, from the same trained field; the ratio of their times per vertex, less 1 (the
+    /// demo's `render --cost` does it; 0.25 there). A guess too high turns guides off that
+    /// pay. `Some(0.0)` turns a guide off only where it does not lower the variance at all.
+    /// Must be finite and in `[0, 100]`.
     pub guide_cost: Option<f32>,
 }
 
@@ -123,7 +125,7 @@ impl Default for GuidingConfig {
             spatial_filter: SpatialFilter::Nearest,
             directional_filter: DirectionalFilter::Box,
             max_guide_probability: DEFAULT_MAX_GUIDE_PROBABILITY,
-            guide_cost: Some(DEFAULT_GUIDE_COST),
+            guide_cost: None,
         }
     }
 }

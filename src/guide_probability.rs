@@ -41,7 +41,8 @@
 //! the BSDF samples it — diffuse surfaces lit from all around — the best mixture lowers the
 //! variance of the vertex's estimate by little, and the cost is not repaid. With `cost` the
 //! guide's extra cost per vertex, relative
-//! ([`guide_cost`](crate::GuidingConfig::guide_cost), default [`DEFAULT_GUIDE_COST`]), the
+//! ([`guide_cost`](crate::GuidingConfig::guide_cost); off by default, since only the renderer
+//! can measure it), the
 //! vertex's efficiency, 1/(variance × cost), is higher with BSDF sampling alone when
 //!
 //! ```text
@@ -84,8 +85,6 @@ pub const MIN_GUIDE_PROBABILITY: f32 = 0.05;
 pub const MAX_GUIDE_PROBABILITY: f32 = 0.95;
 /// The default of [`GuidingConfig::max_guide_probability`](crate::GuidingConfig::max_guide_probability).
 pub const DEFAULT_MAX_GUIDE_PROBABILITY: f32 = 0.75;
-/// The default of [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost).
-pub const DEFAULT_GUIDE_COST: f32 = 0.25;
 /// The largest [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost) a
 /// configuration accepts.
 pub const MAX_GUIDE_COST: f32 = 100.0;

@@ -27,6 +27,10 @@
 //!   load     GuidingField::load / load_from_path   cache bytes ─► validated field (or CacheError)
 //!   merge    GuidingField::merge                   worker fields ─► summed statistics (exact) ─► refine
 //!
+//!   a path, per render thread:
+//!   PathRecorder   push / add_radiance / roulette / split as they happen ─► finish ─► every
+//!                  vertex's Sample (incident value, roulette-free square) and Continuation ─► record
+//!
 //!   roulette and splitting, beside the guide:
 //!   record   record_continuation(c)                 a traced continuation's value and cost ─► the leaf's sums
 //!   refine                                          sums ─► the leaf's continuation estimate
@@ -86,8 +90,11 @@
 //!   directional cells to split).
 //! - `guide_probability`: the per-region probability of sampling the guide rather than the
 //!   BSDF, and whether the guide pays for its cost there.
+//! - `path`: [`PathRecorder`], which turns a camera sample's vertices, as the renderer reports
+//!   them, into their [`Sample`]s and [`Continuation`]s ([`PathVertex`], [`PathRecord`]).
 //! - `splitting`: efficiency-aware Russian roulette and splitting — [`Continuation`],
-//!   [`ContinuationEstimate`], [`Splitting`].
+//!   [`ContinuationEstimate`], [`Splitting`]; `image`: the image terms it needs,
+//!   [`ImageStatistics`].
 //! - `distribution`: what queries return — [`DirectionalDistribution`] and its product with a
 //!   surface's clamped cosine, [`SurfaceDistribution`].
 //! - `batch`: the queries and `record` over slices, for wavefront renderers
@@ -141,7 +148,7 @@ pub use distribution::{DirectionalDistribution, SurfaceDistribution};
 pub use field::{GuidingField, SpatialCell};
 pub use filter::{DirectionalFilter, SpatialFilter};
 pub use guide_probability::{
-    DEFAULT_GUIDE_COST, DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
+    DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
     MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
 };
 pub use image::{ImageStatistics, PixelSums};

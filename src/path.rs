@@ -124,6 +124,7 @@ impl PathVertex {
             && weight(self.bsdf)
             && self.pdf.is_finite()
             && self.pdf > 0.0
+            && (self.bsdf / self.pdf).is_finite()
             && self.pdfs.is_none_or(|p| pdf(p.bsdf) && pdf(p.guide))
     }
 }
@@ -148,7 +149,8 @@ pub struct PathRecorderStats {
     /// Paths finished.
     pub paths: u64,
     /// Vertices pushed with a non-finite position or direction, a zero direction, a negative
-    /// or non-finite `bsdf`, or a pdf that is not finite and positive: kept in the path so
+    /// or non-finite `bsdf`, a pdf that is not finite and positive (or so small that
+    /// `bsdf/pdf` overflows), or technique pdfs that are negative or not finite: kept in the path so
     /// that the handles stay valid, but they record nothing and pass nothing to the vertex
     /// before them.
     pub bad_vertices: u64,

@@ -673,9 +673,10 @@ fn optional_fields_are_read_only_with_their_flags() {
         }
         sdg_field_destroy(f);
 
-        // The guide cost: absent without its flag (whatever the number), validated with it.
+        // The guide cost: absent by default and without its flag (whatever the number),
+        // validated with it.
         let config = config();
-        assert_eq!(config.flags & SDG_CONFIG_GUIDE_COST, SDG_CONFIG_GUIDE_COST);
+        assert_eq!(config.flags & SDG_CONFIG_GUIDE_COST, 0);
         let mut out = null_mut();
         let absent = sdg_config {
             guide_cost: f32::NAN,
@@ -687,6 +688,7 @@ fn optional_fields_are_read_only_with_their_flags() {
         sdg_field_destroy(out);
         let bad = sdg_config {
             guide_cost: f32::NAN,
+            flags: config.flags | SDG_CONFIG_GUIDE_COST,
             ..config
         };
         assert_eq!(sdg_field_create(&bad, lo, hi, &mut out), sdg_status::Config);

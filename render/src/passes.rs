@@ -22,7 +22,7 @@
 use crate::image::Image;
 use crate::material::luminance;
 use glam::Vec3;
-use sdguide::{Splitting, SplittingMode};
+use sdguide::{ImageStatistics, PixelSums, Splitting, SplittingMode};
 
 /// The sums of one pass's samples, per pixel.
 #[derive(Clone, Debug)]
@@ -91,27 +91,6 @@ impl PassImage {
     }
 }
 
-/// The luminance of `image` averaged over each pixel's 3×3 neighbourhood (a cheap denoiser,
-/// for dividing by a pixel's value).
-fn smoothed_luminance(image: &Image) -> Vec<f32> {
-    let (w, h) = (image.width, image.height);
-    let lum: Vec<f32> = image.pixels.iter().map(|&c| luminance(c)).collect();
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (mut sum, mut n) = (0.0, 0.0);
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    sum += lum[yy * w + xx];
-                    n += 1.0;
-                }
-            }
-            out[y * w + x] = (sum / n).max(0.0);
-        }
-    }
-    out
-}
-
 /// The passes' images combined by inverse variance; passes without a variance estimate, or
 /// with a zero or non-finite one, are left out. `None` when no pass can be weighed.
 ///
@@ -136,9 +115,10 @@ pub fn combine_all<'a>(passes: impl IntoIterator<Item = &'a PassImage>) -> Optio
     let passes: Vec<&PassImage> = passes.into_iter().collect();
     let last = *passes.last()?;
     let last_mean = last.mean();
-    let relative: Vec<f64> = smoothed_luminance(&last_mean)
-        .iter()
-        .map(|&i| 1.0 / f64::from(i * i + RELATIVE_EPSILON))
+    let mut smoothed = ImageStatistics::new(last_mean.width, last_mean.height);
+    smoothed.set_estimate(Some(&luminances(&last_mean)));
+    let relative: Vec<f64> = (0..last_mean.pixels.len())
+        .map(|p| 1.0 / f64::from(smoothed.pixel(p)).powi(2))
         .collect();
     let weights = Some(relative.as_slice());
     let last_variance = last.weighted_variance(weights);
@@ -178,8 +158,14 @@ pub fn combine_all<'a>(passes: impl IntoIterator<Item = &'a PassImage>) -> Optio
     Some(combined)
 }
 
-/// The `ε` of the relative error the demo judges images by, `(Î − I)²/(I² + ε)`.
-pub const RELATIVE_EPSILON: f32 = 0.01;
+/// The `ε` of the relative error the demo judges images by, `(Î − I)²/(I² + ε)`: the
+/// library's.
+pub const RELATIVE_EPSILON: f32 = ImageStatistics::DEFAULT_EPSILON;
+
+/// Each pixel's luminance.
+fn luminances(image: &Image) -> Vec<f32> {
+    image.pixels.iter().map(|&c| luminance(c)).collect()
+}
 
 /// The image terms of efficiency-aware roulette and splitting: the policy for the next pass
 /// (mode `mode`), and each pixel's `sqrt(Ĩ² + ε)`.
@@ -192,39 +178,45 @@ pub struct PixelEstimates {
     pub pixels: Vec<f32>,
 }
 
-/// Samples per pixel a pass needs before its variance sets the splitting policy. The
-/// variance of a path-traced pixel is heavy-tailed, and estimated from two samples it is
-/// mostly too low (on `door`, a quarter of what more samples show), which makes every factor
-/// too large.
-pub const POLICY_SPP: u32 = 4;
+/// Samples per pixel a pass needs before its variance sets the splitting policy (the
+/// library's gate, [`ImageStatistics::MIN_SAMPLES`]).
+pub const POLICY_SPP: u32 = ImageStatistics::MIN_SAMPLES as u32;
 
 /// Splits a vertex may make in the demo: on `door`, the largest factor of 8 spent 2–3× the
 /// rays of 3 for the same error.
 pub const MAX_SPLITS: f32 = 3.0;
 
 /// What the passes so far (`passes`, oldest first) say about the image, for the next pass's
-/// roulette and splitting: `Ĩ` from all of them combined, the per-sample variance and cost
-/// from the most recent pass with at least [`POLICY_SPP`] samples per pixel. `None` while no
-/// pass has.
+/// roulette and splitting, by the library's [`ImageStatistics`]: `Ĩ` from all of them
+/// combined (by inverse variance: [`combine`]), the per-sample variance and cost from the most
+/// recent pass with at least [`POLICY_SPP`] samples per pixel. `None` while no pass has.
 pub fn splitting(passes: &[&PassImage], mode: SplittingMode) -> Option<PixelEstimates> {
     let latest = passes.iter().rev().find(|p| p.spp >= POLICY_SPP)?;
     let combined = combine_all(passes.iter().copied())?;
-    let pixels: Vec<f32> = smoothed_luminance(&combined)
-        .iter()
-        .map(|&i| (i * i + RELATIVE_EPSILON).sqrt())
-        .collect();
-    // The mean over pixels of each pixel's per-sample variance over P²: the mean's variance
-    // times the samples.
-    let n = f64::from(latest.spp);
-    let inverse: Vec<f64> = pixels.iter().map(|&p| 1.0 / f64::from(p * p)).collect();
-    let relative = latest.weighted_variance(Some(&inverse))? * n;
-    let count = pixels.len().max(1) as f64;
-    let cost = latest.rays / (n * count);
-    let policy = Splitting::new(mode, relative, cost)
+    let (width, height) = (combined.width, combined.height);
+    let mut image = ImageStatistics::new(width, height);
+    // The pass's sums, its rays spread evenly (only their mean per sample is used).
+    let cost = latest.rays / (width * height).max(1) as f64;
+    for (p, (s, &squares)) in image
+        .pass_mut()
+        .iter_mut()
+        .zip(latest.sum.pixels.iter().zip(&latest.squares))
+    {
+        *p = PixelSums {
+            sum: f64::from(luminance(*s)),
+            sum_sq: squares,
+            cost,
+            count: latest.spp,
+        };
+    }
+    image.set_estimate(Some(&luminances(&combined)));
+    image.end_pass();
+    let policy = image
+        .splitting(mode)?
         .with_bounds(Splitting::DEFAULT_MIN_SURVIVAL, MAX_SPLITS)
         .ok()?;
     Some(PixelEstimates {
         splitting: policy,
-        pixels,
+        pixels: (0..width * height).map(|p| image.pixel(p)).collect(),
     })
 }

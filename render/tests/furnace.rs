@@ -158,13 +158,14 @@ fn guided_furnace_converges_to_the_analytic_radiance() {
 
 /// The furnace's radiance is the same from every direction, so BSDF sampling alone already
 /// draws in proportion to the integrand (the cosine): a guide cannot lower the variance there,
-/// and with the default cost it turns off. The render, BSDF sampling where the guide is off,
+/// and with the demo's measured cost it turns off. The render, BSDF sampling where the guide is off,
 /// converges all the same.
 #[test]
 fn in_the_furnace_the_guide_does_not_pay_and_turns_off() {
     let scene = furnace(ALBEDO, EMISSION);
     let config = GuidingConfig {
         spatial_threshold: 1000.0,
+        guide_cost: Some(sdguide_render::method::GUIDE_COST),
         ..GuidingConfig::default()
     };
     let (field, _) = trained_with_config(&scene, config, Roulette::Classic, None);

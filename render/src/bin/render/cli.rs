@@ -2,7 +2,7 @@
 
 use clap::{Parser, ValueEnum};
 use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement};
-use sdguide_render::method::{Budget, Method, Rrs};
+use sdguide_render::method::{Budget, GUIDE_COST, Method, Rrs};
 use sdguide_render::scenes;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -59,8 +59,8 @@ struct Cli {
     #[arg(long, default_value_t = GuidingConfig::default().max_guide_probability)]
     max_guide_probability: f32,
     /// What a guided vertex costs, relative, for cells to turn their guides off by (`none`:
-    /// never).
-    #[arg(long, default_value_t = GuideCost(GuidingConfig::default().guide_cost))]
+    /// never; the default is this renderer's measured cost).
+    #[arg(long, default_value_t = GuideCost(Some(GUIDE_COST)))]
     guide_cost: GuideCost,
     /// How directional cells split.
     #[arg(long, value_enum, default_value = "gain")]
