@@ -10,165 +10,21 @@
 //! integrator performs — so that a renderer needs no bookkeeping of its own. The vertices form
 //! a tree: a renderer that splits pushes several continuations from one vertex.
 //!
-//! Second moments without roulette (see [`Sample::second_moment`]) need the first roulette
+//! Second moments without roulette (see [`Sample::second_moment`](crate::Sample::second_moment)) need the first roulette
 //! below each vertex and what arrived before it: the recorder finds it from the same events.
+//!
+//! `vertex` holds what goes in and comes out (`PathVertex`, `PathRecord`, the counts of bad
+//! input); this file the recorder and its storage; `propagate` the backward pass at `finish`.
+
+mod propagate;
+mod vertex;
 
 use crate::field::GuidingField;
-use crate::sample::Sample;
-use crate::splitting::{Continuation, ContinuationEstimate, Splitting};
+use crate::splitting::{ContinuationEstimate, Splitting};
 use glam::Vec3;
-
-/// The Rec. 709 luminance of an RGB radiance: the scalar the recorder records.
-#[inline]
-pub(crate) fn luminance(rgb: Vec3) -> f32 {
-    rgb.dot(Vec3::new(0.2126, 0.7152, 0.0722))
-}
-
-/// A handle to one vertex of the path being recorded, returned by [`PathRecorder::start`] (the
-/// camera ray) and [`PathRecorder::push`]. Valid until the next `start`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct VertexId(u32);
-
-impl VertexId {
-    /// The handle whose [`index`](Self::index) is `index` (for bindings that pass handles as
-    /// integers). A handle the recorder did not hand out in the current path is ignored by
-    /// every call, and counted in [`PathRecorderStats::bad_values`].
-    pub fn from_index(index: u32) -> Self {
-        VertexId(index)
-    }
-
-    /// Where the vertex sits in the order of pushes (the camera ray is 0): an index for a
-    /// renderer that keeps data of its own beside the recorder's.
-    pub fn index(self) -> usize {
-        self.0 as usize
-    }
-}
-
-/// A scattering vertex as the renderer pushes it: where it is, the direction it drew, and the
-/// weight that direction carries.
-///
-/// ```
-/// use sdguide::PathVertex;
-/// use sdguide::glam::Vec3;
-/// let v = PathVertex::new(Vec3::ZERO, Vec3::Y, Vec3::splat(0.25), 0.5)
-///     .with_normal(Vec3::Y)
-///     .with_mixture(0.3, 0.7);
-/// assert_eq!(v.pdfs.map(|p| p.guide), Some(0.7));
-/// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PathVertex {
-    /// The vertex (world space).
-    pub position: Vec3,
-    /// Its shading normal, the one passed to
-    /// [`at_surface`](crate::DirectionalDistribution::at_surface) there, facing the side the
-    /// path arrived from (`None`: recorded without one).
-    pub normal: Option<Vec3>,
-    /// The direction drawn, pointing away from `position` (any length).
-    pub direction: Vec3,
-    /// `f·|cos θ|` toward `direction`, per channel: the BSDF times the cosine, 0 where the
-    /// BSDF is (below the surface).
-    pub bsdf: Vec3,
-    /// The density `direction` was drawn with: the mixture's `q = a·p_guide + (1 − a)·p_bsdf`
-    /// where the renderer mixes, finite and positive.
-    pub pdf: f32,
-    /// The two techniques' pdfs of `direction` when the renderer sampled the one-sample
-    /// mixture: what the cell's guide probability learns from (see [`Sample::with_mixture`]).
-    pub pdfs: Option<TechniquePdfs>,
-}
-
-/// The BSDF's and the guide's pdfs of a direction drawn from their mixture.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct TechniquePdfs {
-    /// The BSDF sampling pdf (solid angle).
-    pub bsdf: f32,
-    /// The guide's pdf: the product's where the renderer samples
-    /// [`at_surface`](crate::DirectionalDistribution::at_surface), the plain one otherwise.
-    pub guide: f32,
-}
-
-impl PathVertex {
-    /// A vertex at `position` that drew `direction` with density `pdf`, where the BSDF times
-    /// the cosine is `bsdf`.
-    pub const fn new(position: Vec3, direction: Vec3, bsdf: Vec3, pdf: f32) -> Self {
-        PathVertex {
-            position,
-            normal: None,
-            direction,
-            bsdf,
-            pdf,
-            pdfs: None,
-        }
-    }
-
-    /// The vertex with its shading normal.
-    pub const fn with_normal(mut self, normal: Vec3) -> Self {
-        self.normal = Some(normal);
-        self
-    }
-
-    /// The vertex with the BSDF's and the guide's pdfs of its direction.
-    pub const fn with_mixture(mut self, bsdf_pdf: f32, guide_pdf: f32) -> Self {
-        self.pdfs = Some(TechniquePdfs {
-            bsdf: bsdf_pdf,
-            guide: guide_pdf,
-        });
-        self
-    }
-
-    fn is_valid(&self) -> bool {
-        let weight = |w: Vec3| w.is_finite() && w.min_element() >= 0.0;
-        let pdf = |p: f32| p.is_finite() && p >= 0.0;
-        self.position.is_finite()
-            && self.direction.is_finite()
-            && self.direction != Vec3::ZERO
-            && weight(self.bsdf)
-            && self.pdf.is_finite()
-            && self.pdf > 0.0
-            && (self.bsdf / self.pdf).is_finite()
-            && self.pdfs.is_none_or(|p| pdf(p.bsdf) && pdf(p.guide))
-    }
-}
-
-/// What a finished path recorded at one vertex: its training sample and its continuation.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PathRecord {
-    /// The vertex.
-    pub id: VertexId,
-    /// The radiance's luminance that arrived along its direction, the direction's pdf, its
-    /// normal, mixture terms and second moment without roulette.
-    pub sample: Sample,
-    /// The light the vertex reflected through this direction, `f·cos·L_i/q` (its own split
-    /// weight not included), and what tracing it cost: for roulette and splitting.
-    pub continuation: Continuation,
-}
-
-/// The recorder's counts of bad input, since it was created. Bad input never panics: it is
-/// dropped and counted here.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct PathRecorderStats {
-    /// Paths finished.
-    pub paths: u64,
-    /// Vertices pushed with a non-finite position or direction, a zero direction, a negative
-    /// or non-finite `bsdf`, a pdf that is not finite and positive (or so small that
-    /// `bsdf/pdf` overflows), or technique pdfs that are negative or not finite: kept in the path so
-    /// that the handles stay valid, but they record nothing and pass nothing to the vertex
-    /// before them.
-    pub bad_vertices: u64,
-    /// Radiance, costs, roulette probabilities or split factors that were negative or not
-    /// finite (or a probability not in `(0, 1]`, a factor not positive): ignored.
-    pub bad_values: u64,
-    /// Vertices refused because the path already held [`PathRecorder::max_vertices`]:
-    /// the handle returned for them is the path's overflow sink, which drops what it is given.
-    pub dropped_vertices: u64,
-    /// Paths that overflowed: they record nothing (their values would lack what the dropped
-    /// vertices gathered), and their estimate lacks it too.
-    pub truncated_paths: u64,
-    /// Vertices where [`PathRecorder::factor`] gave a splitting factor.
-    pub factors: u64,
-    /// Vertices where it gave none (the cell had too few continuations, or the image terms
-    /// were missing): the renderer played its own roulette there.
-    pub no_factor: u64,
-}
+use propagate::FirstRoulette;
+pub(crate) use vertex::luminance;
+pub use vertex::{PathRecord, PathRecorderStats, PathVertex, TechniquePdfs, VertexId};
 
 /// A camera sample's path, recorded vertex by vertex, and the training samples and
 /// continuations it yields once done. One per render thread, reused for every camera sample:
@@ -188,10 +44,10 @@ pub struct PathRecorderStats {
 ///   the guide from sampling there.
 /// - [`roulette`](Self::roulette)`(v, p, survived)`: the path along `v` went on with
 ///   probability `p`; what arrives at `v` after this weighs `1/p`.
-/// - [`split`](Self::split)`(v, q, n)`: at the vertex the ray of `v` reached, `n`
-///   continuations are traced for a splitting factor `q` (`E[n] = q`, as
+/// - [`split`](Self::split)`(v, k, n)`: at the vertex the ray of `v` reached, `n`
+///   continuations are traced for a splitting factor `k` (`E[n] = k`, as
 ///   [`continuations`](crate::continuations) rounds it); each one pushed after this weighs
-///   `1/q`. Efficiency-aware roulette is a split with `q < 1`.
+///   `1/k`. Efficiency-aware roulette is a split with `k < 1`. (`q` is the mixture pdf.)
 /// - [`add_cost`](Self::add_cost)`(v, c)`: rays (or any cost unit) traced for `v`; a
 ///   continuation's cost is its subtree's.
 /// - [`finish`](Self::finish): the camera sample's estimate; then
@@ -277,29 +133,6 @@ enum EventKind {
 struct Event {
     kind: EventKind,
     next: u32,
-}
-
-/// The first roulette below a vertex's direction and what arrived before it, in the vertex's
-/// units; `None` where none is tracked (none was played, or a split came first).
-#[derive(Clone, Copy, Debug, Default)]
-struct FirstRoulette(Option<(Vec3, f32, bool)>);
-
-impl FirstRoulette {
-    /// The estimate of `value²` without the roulette (see [`Sample::second_moment`]).
-    fn second_moment(self, value: f32) -> f32 {
-        let Some((before, s, survived)) = self.0 else {
-            return value * value;
-        };
-        let a = luminance(before);
-        if s >= 1.0 {
-            return value * value;
-        }
-        if !survived {
-            return a * a;
-        }
-        let y = a + s * (value - a);
-        ((y * y - (1.0 - s) * a * a) / s).max(0.0)
-    }
 }
 
 impl Default for PathRecorder {
@@ -510,36 +343,6 @@ impl PathRecorder {
             .count()
     }
 
-    fn record_of(&self, i: u32) -> Option<PathRecord> {
-        let node = &self.nodes[i as usize];
-        if !matches!(node.kind, Kind::Scatter) {
-            return None;
-        }
-        let v = &node.vertex;
-        let value = luminance(node.incident);
-        let mut sample = Sample {
-            position: v.position,
-            direction: v.direction,
-            value,
-            pdf: v.pdf,
-            normal: v.normal,
-            second_moment: Some(node.first_roulette.second_moment(value)),
-            ..Sample::default()
-        };
-        if let Some(p) = v.pdfs {
-            sample = sample.with_mixture(luminance(v.bsdf * node.incident), p.bsdf, p.guide);
-        }
-        Some(PathRecord {
-            id: VertexId(i),
-            sample,
-            continuation: Continuation {
-                position: v.position,
-                value: luminance(node.factor * node.incident),
-                cost: node.cost,
-            },
-        })
-    }
-
     fn node_mut(&mut self, at: VertexId) -> Option<&mut Node> {
         if self.finished || at == SINK {
             return None;
@@ -585,107 +388,6 @@ impl PathRecorder {
         }
         node.last_event = id;
     }
-
-    /// Computes vertex `i`'s incident radiance, cost and first roulette from its events and
-    /// its children's results, in the order the events happened.
-    fn settle(&mut self, i: usize) {
-        self.scopes.clear();
-        self.scopes.push((Vec3::ZERO, 1.0));
-        let mut cost = self.nodes[i].own_cost;
-        // The first roulette below the vertex: the radiance before it, and whether the search
-        // is over.
-        let (mut before, mut first, mut searching) = (Vec3::ZERO, FirstRoulette(None), true);
-        let mut e = self.nodes[i].first_event;
-        while e != NONE {
-            let Event { kind, next } = self.events[e as usize];
-            e = next;
-            match kind {
-                EventKind::Radiance(l) => {
-                    self.top().0 += l;
-                    if searching {
-                        before += l;
-                    }
-                }
-                EventKind::Roulette {
-                    probability,
-                    survived,
-                } => {
-                    self.scopes.push((Vec3::ZERO, probability));
-                    if searching {
-                        first = FirstRoulette(Some((before, probability, survived)));
-                        searching = false;
-                    }
-                }
-                EventKind::Split { factor, traced } => {
-                    if searching && factor != 1.0 {
-                        if factor < 1.0 {
-                            first = FirstRoulette(Some((before, factor, traced > 0)));
-                        }
-                        searching = false;
-                    }
-                }
-                EventKind::Child(c) => {
-                    let child = self.nodes[c as usize];
-                    cost += child.cost;
-                    if matches!(child.kind, Kind::Bad) {
-                        searching = false;
-                        continue;
-                    }
-                    let reflected = child.factor * child.incident;
-                    let (weight, below) = (child.weight, child.first_roulette);
-                    self.top().0 += weight * reflected;
-                    if searching {
-                        // A continuation of weight 1: the first roulette below it, seen from
-                        // here. (Where a split weighed it, the search ended at the split.)
-                        let factor = child.factor;
-                        first = FirstRoulette(below.0.map(|(b, p, s)| (before + factor * b, p, s)));
-                        searching = false;
-                    }
-                }
-            }
-        }
-        // Innermost scope first: each one's sum over its roulette's probability joins the
-        // scope around it.
-        let (mut incident, mut p) = self.scopes.pop().unwrap_or((Vec3::ZERO, 1.0));
-        while let Some((sum, outer)) = self.scopes.pop() {
-            incident = sum + incident / p;
-            p = outer;
-        }
-        let node = &mut self.nodes[i];
-        node.incident = incident;
-        node.cost = cost;
-        node.first_roulette = first;
-    }
-
-    fn top(&mut self) -> &mut (Vec3, f32) {
-        let last = self.scopes.len() - 1;
-        &mut self.scopes[last]
-    }
-
-    /// The records' order: a depth-first walk from the camera ray, each vertex after its
-    /// children.
-    fn walk(&mut self) {
-        self.order.clear();
-        self.stack.clear();
-        self.stack.push((0, self.nodes[0].first_event));
-        while let Some(&mut (node, ref mut e)) = self.stack.last_mut() {
-            let mut child = None;
-            while *e != NONE && child.is_none() {
-                let event = self.events[*e as usize];
-                *e = event.next;
-                if let EventKind::Child(c) = event.kind {
-                    child = Some(c);
-                }
-            }
-            match child {
-                Some(c) => self.stack.push((c, self.nodes[c as usize].first_event)),
-                None => {
-                    self.order.push(node);
-                    self.stack.pop();
-                }
-            }
-        }
-    }
 }
 
 impl Node {
@@ -706,7 +408,7 @@ impl Node {
             own_cost: 0.0,
             incident: Vec3::ZERO,
             cost: 0.0,
-            first_roulette: FirstRoulette(None),
+            first_roulette: FirstRoulette::default(),
         }
     }
 }
