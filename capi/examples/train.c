@@ -225,6 +225,28 @@ int main(int argc, char **argv) {
     }
     printf("saved and reloaded %zu bytes\n", size);
 
+    /* The path recorder: a camera sample's vertex, the light that reached it through a
+       roulette it survived, and the record it makes. */
+    sdg_path *recorder = NULL;
+    CHECK(sdg_path_create(0, &recorder) == SDG_STATUS_OK, "path");
+    uint32_t camera = 0, vertex = 0;
+    CHECK(sdg_path_start(recorder, &camera) == SDG_STATUS_OK, "path start");
+    sdg_path_vertex pv = {0};
+    pv.position = x;
+    pv.direction = uniform_direction(0.3f, 0.6f);
+    pv.bsdf = (sdg_vec3){0.2f, 0.2f, 0.2f};
+    pv.pdf = 0.5f;
+    CHECK(sdg_path_push(recorder, camera, &pv, &vertex) == SDG_STATUS_OK, "path push");
+    CHECK(sdg_path_roulette(recorder, vertex, 0.5f, 1) == SDG_STATUS_OK, "path roulette");
+    CHECK(sdg_path_add_radiance(recorder, vertex, (sdg_vec3){1.0f, 1.0f, 1.0f}) == SDG_STATUS_OK,
+          "path radiance");
+    sdg_vec3 estimate;
+    size_t recorded = 0;
+    CHECK(sdg_path_finish(recorder, &estimate) == SDG_STATUS_OK, "path finish");
+    CHECK(fabsf(estimate.x - 0.2f / 0.5f / 0.5f) < 1e-6f, "path estimate %g", (double)estimate.x);
+    CHECK(sdg_path_record(recorder, field, &recorded) == SDG_STATUS_OK && recorded == 1, "path record");
+    sdg_path_destroy(recorder);
+
     /* Errors are codes and messages, not crashes. */
     bytes[size / 2] ^= 0xff;
     sdg_field *broken = NULL;

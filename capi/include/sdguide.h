@@ -474,7 +474,7 @@ typedef struct {
    Paths that overflowed: they record nothing.
    */
   uint64_t truncated_paths;
-} sdg_path_stats;
+} sdg_path_recorder_stats;
 
 #ifdef __cplusplus
 extern "C" {
@@ -872,7 +872,7 @@ sdg_status sdg_path_record(sdg_path *path, const sdg_field *field, size_t *recor
  # Safety
  `path` must be null or a live handle no other thread uses; `out` null or writable.
  */
-sdg_status sdg_path_stats(sdg_path *path, sdg_path_stats *out);
+sdg_status sdg_path_stats(sdg_path *path, sdg_path_recorder_stats *out);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -40,7 +40,7 @@ pub struct sdg_path_vertex {
 /// The recorder's counts of bad input (see the Rust `PathRecorderStats`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct sdg_path_stats {
+pub struct sdg_path_recorder_stats {
     /// Paths finished.
     pub paths: u64,
     /// Vertices pushed with bad input: kept, recording and passing on nothing.
@@ -285,12 +285,12 @@ pub unsafe extern "C" fn sdg_path_record(
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sdg_path_stats(
     path: *mut sdg_path,
-    out: *mut sdg_path_stats,
+    out: *mut sdg_path_recorder_stats,
 ) -> sdg_status {
     guard(|| {
         // SAFETY: the caller's contract.
         let s = unsafe { recorder(path) }?.stats();
-        let stats = sdg_path_stats {
+        let stats = sdg_path_recorder_stats {
             paths: s.paths,
             bad_vertices: s.bad_vertices,
             bad_values: s.bad_values,

@@ -861,7 +861,7 @@ fn the_path_recorder_records_a_path_and_refuses_bad_calls() {
             sdg_path_add_radiance(null_mut(), 0, v(1.0, 1.0, 1.0)),
             sdg_status::NullPointer
         );
-        let mut stats = sdg_path_stats::default();
+        let mut stats = sdg_path_recorder_stats::default();
         assert_eq!(sdg_path_stats(path, &mut stats), sdg_status::Ok);
         assert_eq!(
             (stats.paths, stats.bad_values, stats.bad_vertices),
