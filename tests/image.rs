@@ -1,7 +1,7 @@
 //! Image statistics against hand-computed images: the smoothed pixel values, the relative
 //! variance and cost per sample, the gate on samples per pixel, and bad input.
 
-use sdguide::{ImageStatistics, Splitting, SplittingMode};
+use sdguide::{ContinuationEstimate, ImageStatistics, Splitting, SplittingMode};
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
@@ -43,8 +43,22 @@ fn the_terms_follow_their_definitions() {
     let policy = image
         .splitting(SplittingMode::RouletteAndSplitting)
         .unwrap();
+    // The policy is the one built from those terms: the same factor for any cell.
     let mine = Splitting::new(SplittingMode::RouletteAndSplitting, expected, 3.0);
-    assert_eq!(policy.mode(), mine.mode());
+    let cell = ContinuationEstimate {
+        sum: 32.0,
+        sum_sq: 96.0,
+        cost: 128.0,
+        count: 32,
+    };
+    for throughput in [0.01, 0.1, 1.0] {
+        let a = policy.factor(&cell, throughput, 1.0).unwrap();
+        let b = mine.factor(&cell, throughput, 1.0).unwrap();
+        assert!(
+            (a - b).abs() <= 1e-6 * b,
+            "throughput {throughput}: {a} against {b}"
+        );
+    }
 }
 
 #[test]

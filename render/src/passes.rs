@@ -158,10 +158,6 @@ pub fn combine_all<'a>(passes: impl IntoIterator<Item = &'a PassImage>) -> Optio
     Some(combined)
 }
 
-/// The `ε` of the relative error the demo judges images by, `(Î − I)²/(I² + ε)`: the
-/// library's.
-pub const RELATIVE_EPSILON: f32 = ImageStatistics::DEFAULT_EPSILON;
-
 /// Each pixel's luminance.
 fn luminances(image: &Image) -> Vec<f32> {
     image.pixels.iter().map(|&c| luminance(c)).collect()
