@@ -226,6 +226,28 @@ fn bench_query(c: &mut Criterion) {
             acc
         })
     });
+    // The same in a medium: the product with a Henyey–Greenstein phase function about a
+    // random direction of travel, over the same trained trees (a volume guide's trees are the
+    // same kind). A moderate and a strongly forward-scattering medium: the narrower the lobe,
+    // the deeper the product descends.
+    for g_value in [0.3f32, 0.9] {
+        g.bench_function(
+            format!("distribution+with_phase+sample+pdf, g={g_value}"),
+            |b| {
+                b.iter(|| {
+                    let mut acc = 0.0f32;
+                    for (&(x, u, other), &travel) in queries.iter().zip(&normals) {
+                        let dist = field
+                            .distribution(black_box(x))
+                            .with_phase(black_box(travel), black_box(g_value));
+                        let (d, p) = dist.sample(black_box(u));
+                        acc += p + d.x + dist.pdf(black_box(other));
+                    }
+                    acc
+                })
+            },
+        );
+    }
     // The same at the room's walls and floor, whose normals the field stored products for
     // (recorded with the workload's samples); the sphere's points take the per-query product.
     let vertices: Vec<(Vec3, Vec3)> = (0..BATCH)

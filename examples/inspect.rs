@@ -83,6 +83,12 @@ fn main() -> ExitCode {
         "  surface products   {} ({} nodes)",
         s.surface_products, s.surface_product_nodes
     );
+    if c.volumes {
+        println!(
+            "  volume guides      {} nodes, {} medium samples this iteration",
+            s.volume_directional_nodes, s.volume_samples_recorded
+        );
+    }
 
     let at = args.at.unwrap_or(b.center());
     let cell = field.cell_at(at);

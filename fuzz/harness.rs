@@ -63,7 +63,8 @@ pub fn field_ops(data: &[u8]) {
                 // The high bit of `n` adds mixture terms (integrand v, BSDF pdf `pdf`, guide pdf
                 // `v`): arbitrary values for the guide-selection sums. The next bit adds a second
                 // moment (`pdf`, any value, to the second-moment sums), the next one a normal
-                // (the direction, any vector: the tally of normals).
+                // (the direction, any vector: the tally of normals), the next one makes it a
+                // medium sample (the volume guides, or a rejection without them).
                 let mut sample = Sample {
                     position: p,
                     direction: d,
@@ -71,6 +72,7 @@ pub fn field_ops(data: &[u8]) {
                     pdf,
                     second_moment: (n & 0x40 != 0).then_some(pdf),
                     normal: (n & 0x20 != 0).then_some(d),
+                    volume: n & 0x10 != 0,
                     ..Sample::default()
                 };
                 if n & 0x80 != 0 {
@@ -84,7 +86,9 @@ pub fn field_ops(data: &[u8]) {
                 field.refine();
                 refines += 1;
             }
-            // Query, and record what the query drew, as a renderer would.
+            // Query, and record what the query drew, as a renderer would; then the volume
+            // guide's product with a phase function of arbitrary asymmetry `v` about the drawn
+            // direction, recorded as a medium sample.
             3 => {
                 let (Some(x), Some(u), Some(v)) = (b.vec3(), b.vec2(), b.f32()) else {
                     break;
@@ -95,6 +99,22 @@ pub fn field_ops(data: &[u8]) {
                     direction: d,
                     value: v,
                     pdf,
+                    ..Sample::default()
+                });
+                let phase = field.volume_distribution(x).with_phase(d, v);
+                let (w, p) = phase.sample(u);
+                assert!(
+                    w.is_finite() && (w.length() - 1.0).abs() < 1e-4,
+                    "direction {w}"
+                );
+                assert!(p > 0.0 && p.is_finite(), "phase pdf {p}");
+                assert_eq!(p.to_bits(), phase.pdf(w).to_bits(), "phase sample and pdf");
+                field.record(&Sample {
+                    position: x,
+                    direction: w,
+                    value: v,
+                    pdf: p,
+                    volume: true,
                     ..Sample::default()
                 });
             }
@@ -157,6 +177,7 @@ fn path_ops(b: &mut Bytes<'_>, field: &GuidingField, events: u8) {
         match kind % 6 {
             0 => {
                 let v = PathVertex::new(x, w, w.abs(), f).with_normal(x);
+                let v = if kind & 0x40 != 0 { v.in_volume() } else { v };
                 ids.push(path.push(
                     at,
                     if kind & 0x80 != 0 {
@@ -213,6 +234,8 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
         (true, false) => DirectionalFilter::Box,
         (true, true) => DirectionalFilter::DeferredBox,
     };
+    // Bit 5 gives every spatial leaf a volume guide.
+    config.volumes = filters & 32 != 0;
     // Bit 3 picks the refinement; the arbitrary ρ doubles as τ (both must be in (0, 1)).
     if filters & 8 == 0 {
         config.refinement = Refinement::FluxShare;

@@ -106,6 +106,16 @@ pub struct GuidingConfig {
     /// pay. `Some(0.0)` turns a guide off only where it does not lower the variance at all.
     /// Must be finite and in `[0, 100]`.
     pub guide_cost: Option<f32>,
+    /// Whether every spatial leaf keeps a second guide, for vertices inside participating
+    /// media; default `false`. A medium vertex receives light from the whole sphere and
+    /// samples the guide's product with its phase function
+    /// ([`DirectionalDistribution::with_phase`](crate::DirectionalDistribution::with_phase)),
+    /// so it learns apart from the surfaces: samples with [`Sample::volume`](crate::Sample::volume)
+    /// go to it, and [`GuidingField::volume_distribution`](crate::GuidingField::volume_distribution)
+    /// reads it. Without it a medium sample is rejected
+    /// ([`RejectReason::NoVolumeGuide`](crate::RejectReason::NoVolumeGuide)). The second
+    /// guide shares the memory budget and the continuation estimate of its leaf.
+    pub volumes: bool,
 }
 
 impl Default for GuidingConfig {
@@ -126,6 +136,7 @@ impl Default for GuidingConfig {
             directional_filter: DirectionalFilter::Box,
             max_guide_probability: DEFAULT_MAX_GUIDE_PROBABILITY,
             guide_cost: None,
+            volumes: false,
         }
     }
 }

@@ -12,7 +12,7 @@ use crate::exact::MAX_TERM;
 use crate::filter::{SpatialFilter, hash_jitter};
 use crate::moments::{Moments, weights};
 use crate::quadtree::{DirectionalCell, bytes_per_node, tally_priority};
-use crate::region::{RefineOutcome, Region, StepParams};
+use crate::region::{Guide, RefineOutcome, Region, StepParams};
 use crate::rule::{LeafRule, mixture_value};
 use crate::sample::{RejectReason, Sample};
 use crate::spatial::SpatialTree;
@@ -93,11 +93,12 @@ impl GuidingField {
                               enough to partition in f32 where the box lies",
             });
         }
+        let volumes = config.volumes;
         let mut field = Self {
             bounds,
             config,
             spatial: SpatialTree::new(cube),
-            regions: vec![Region::default()],
+            regions: vec![Region::default().with_volume(volumes.then(Guide::default))],
             iteration: 0,
             rejected: RejectCounters::default(),
             rejected_before: Rejections::default(),
@@ -159,6 +160,10 @@ impl GuidingField {
         if !self.spatial.accepts(p) {
             return Err(RejectReason::OutOfBounds);
         }
+        let volume = sample.volume;
+        if volume && !self.config.volumes {
+            return Err(RejectReason::NoVolumeGuide);
+        }
         // The sample's own leaf, and for the spatial filters its extent: one lookup.
         let (home, extent) = match self.config.spatial_filter {
             SpatialFilter::Nearest => (self.spatial.leaf_at(p), Vec3::ZERO),
@@ -167,8 +172,9 @@ impl GuidingField {
                 (l.leaf, l.bounds.extent())
             }
         };
-        // One sample in eight tallies its normal (see `quadtree::surfaces`).
-        let tallied = sample.normal.and_then(|n| {
+        // One sample in eight tallies its normal (see `quadtree::surfaces`); a medium vertex
+        // has none.
+        let tallied = sample.normal.filter(|_| !volume).and_then(|n| {
             let priority = tally_priority(p, sample.direction)?;
             Some((crate::sphere::normalize(n)?, priority))
         });
@@ -180,10 +186,11 @@ impl GuidingField {
         if let Some(m) = &sample.mixture {
             // The selection belongs to the leaf whose distribution sampled the direction.
             let region = &self.regions[home];
-            clamped = region.record_selection(m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
+            clamped =
+                region.record_selection(volume, m.integrand, m.bsdf_pdf, m.guide_pdf, sample.pdf);
             if self.config.rule == LeafRule::L2Mixture {
                 // The region's own pdf is the one the direction was guided with.
-                let p_g = f64::from(region.square_pdf(square)) * f64::from(INV_SPHERE_AREA);
+                let p_g = f64::from(region.square_pdf(volume, square)) * f64::from(INV_SPHERE_AREA);
                 value = mixture_value(m.integrand, m.guide_pdf, p_g, sample.pdf);
             }
         }
@@ -194,14 +201,14 @@ impl GuidingField {
             self.clamped.count();
         }
         match self.config.spatial_filter {
-            SpatialFilter::Nearest => self.insert_directional(home, square, w, true),
+            SpatialFilter::Nearest => self.insert_directional(home, volume, square, w, true),
             SpatialFilter::Stochastic => {
                 let u = sample
                     .jitter
                     .unwrap_or_else(|| hash_jitter(p, sample.direction))
                     .clamp(Vec3::ZERO, Vec3::ONE);
                 let moved = self.spatial.cube().clamp(p + (u - 0.5) * extent);
-                self.insert_directional(self.spatial.leaf_at(moved), square, w, true);
+                self.insert_directional(self.spatial.leaf_at(moved), volume, square, w, true);
             }
             SpatialFilter::Box => {
                 // The sample counts in its own leaf; its weights spread over the leaf-sized box
@@ -211,27 +218,35 @@ impl GuidingField {
                     (p - 0.5 * extent).max(cube.min),
                     (p + 0.5 * extent).min(cube.max),
                 );
-                let volume = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
-                if volume <= 0.0 {
-                    self.insert_directional(home, square, w, true);
+                let size = (hi - lo).max(Vec3::ZERO).as_dvec3().element_product();
+                if size <= 0.0 {
+                    self.insert_directional(home, volume, square, w, true);
                     return Ok(());
                 }
-                self.regions[home].count_sample(square, w.1);
+                self.regions[home].count_sample(volume, square, w.1);
                 self.spatial.overlapping(lo, hi, |leaf, v| {
-                    let share = v / volume;
+                    let share = v / size;
                     let part = (w.0 * share, w.1 * share);
-                    self.insert_directional(leaf, square, part, false);
+                    self.insert_directional(leaf, volume, square, part, false);
                 });
             }
         }
         Ok(())
     }
 
-    /// Records weights `w` at `square` into spatial leaf `leaf`'s region through the
-    /// directional filter; `counted`: as the sample's own record (see `Region::record`).
+    /// Records weights `w` at `square` into spatial leaf `leaf`'s surface (or medium,
+    /// `volume`) guide through the directional filter; `counted`: as the sample's own record
+    /// (see `Region::record`).
     #[inline]
-    fn insert_directional(&self, leaf: usize, square: Vec2, w: (f64, f64), counted: bool) {
-        self.regions[leaf].record(self.config.directional_filter, square, w, counted);
+    fn insert_directional(
+        &self,
+        leaf: usize,
+        volume: bool,
+        square: Vec2,
+        w: (f64, f64),
+        counted: bool,
+    ) {
+        self.regions[leaf].record(volume, self.config.directional_filter, square, w, counted);
     }
 
     /// Records one traced continuation of a path vertex (see [`Continuation`]), for the
@@ -283,6 +298,32 @@ impl GuidingField {
         self.regions[self.spatial.leaf_at(position)].distribution()
     }
 
+    /// The directional distribution to sample at `position` inside a participating medium:
+    /// the guide learned from medium samples ([`Sample::volume`]), whose product with the
+    /// phase function [`with_phase`](DirectionalDistribution::with_phase) gives, and whose
+    /// [`guide_probability`](DirectionalDistribution::guide_probability) is the learned
+    /// guide-vs-phase-function one. In a field without
+    /// [`volumes`](GuidingConfig::volumes): the uniform distribution with guide probability 0
+    /// (sample the phase function alone). Positions outside the bounds get the nearest cell's.
+    ///
+    /// ```
+    /// use sdguide::{Aabb, GuidingConfig, GuidingField};
+    /// use glam::{Vec2, Vec3};
+    /// let config = GuidingConfig { volumes: true, ..GuidingConfig::default() };
+    /// let field = GuidingField::new(Aabb::new(Vec3::ZERO, Vec3::ONE), config)?;
+    /// // A ray travelling along +x scatters at the centre, in fog with g = 0.8.
+    /// let fog = field.volume_distribution(Vec3::splat(0.5)).with_phase(Vec3::X, 0.8);
+    /// let (direction, pdf) = fog.sample(Vec2::new(0.3, 0.6));
+    /// assert_eq!(pdf, fog.pdf(direction));
+    /// // Forward scattering: ahead is far likelier than behind.
+    /// assert!(fog.pdf(Vec3::X) > 100.0 * fog.pdf(-Vec3::X));
+    /// # Ok::<(), sdguide::ConfigError>(())
+    /// ```
+    #[inline]
+    pub fn volume_distribution(&self, position: Vec3) -> DirectionalDistribution<'_> {
+        self.regions[self.spatial.leaf_at(position)].volume_distribution()
+    }
+
     /// Ends an iteration. Every spatial leaf turns its recorded moments into its next sampling
     /// distribution (by [`GuidingConfig::rule`]) and its next directional topology (split and
     /// collapse by [`GuidingConfig::refinement`], in parallel over leaves); then spatial leaves
@@ -294,8 +335,14 @@ impl GuidingField {
         // The memory budget binds the directional trees too: what the spatial tree and the
         // trees' fixed parts leave of it, shared evenly, caps each tree's interior nodes.
         let deferred = c.directional_filter.defers();
-        let trees = self.regions.len() as u64;
-        let fixed = self.spatial.bytes() as u64 + trees * Region::fixed_bytes(deferred);
+        let regions = self.regions.len() as u64;
+        let (trees, volume_bytes) = if c.volumes {
+            (2 * regions, Region::fixed_volume_bytes(deferred))
+        } else {
+            (regions, 0)
+        };
+        let fixed =
+            self.spatial.bytes() as u64 + regions * (Region::fixed_bytes(deferred) + volume_bytes);
         let per_tree =
             c.max_memory_bytes.saturating_sub(fixed) / (trees * bytes_per_node(deferred));
         let params = StepParams::new(c, c.max_directional_nodes.min(per_tree.max(1) as u32));

@@ -84,7 +84,9 @@
 //! - `quadtree`: the double-buffered directional quadtree: `recording` (what `record` adds
 //!   to), `splat` (the directional box filter), `refine` (from the iteration's recording tree
 //!   to the next sampling and recording trees), `sampling` (what `sample` and `pdf` descend),
-//!   `horizon` and `surfaces` (the product with the clamped cosine).
+//!   `product` (the descent of a guide's product with a lobe), `horizon` and `surfaces` (the
+//!   product with the clamped cosine), `phase` (the product with a Henyey–Greenstein phase
+//!   function).
 //! - `moments` ([`Moments`]: `Σ v/p`, `Σ v²/p`, `n`), kept as `exact` sums; `rule`
 //!   ([`LeafRule`]: how moments become leaf masses), `refinement` ([`Refinement`]: which
 //!   directional cells to split).
@@ -95,8 +97,9 @@
 //! - `splitting`: efficiency-aware Russian roulette and splitting — [`Continuation`],
 //!   [`ContinuationEstimate`], [`Splitting`]; `image`: the image terms it needs,
 //!   [`ImageStatistics`].
-//! - `distribution`: what queries return — [`DirectionalDistribution`] and its product with a
-//!   surface's clamped cosine, [`SurfaceDistribution`].
+//! - `distribution`: what queries return — [`DirectionalDistribution`], its product with a
+//!   surface's clamped cosine, [`SurfaceDistribution`], and with a medium's phase function,
+//!   [`PhaseDistribution`].
 //! - `batch`: the queries and `record` over slices, for wavefront renderers
 //!   ([`GuidingField::sample_batch`], [`BatchError`]).
 //! - `cache` (save, load: [`CacheError`]; the format is `docs/cache-format.md`), `merge`
@@ -144,7 +147,7 @@ pub use batch::{BATCH_CHUNK, BatchError};
 pub use bounds::Aabb;
 pub use cache::{CacheError, FORMAT_MAJOR, FORMAT_MINOR, MAGIC};
 pub use config::{ConfigError, GuidingConfig, MAX_DIRECTIONAL_DEPTH, MIN_UNIFORM_FRACTION};
-pub use distribution::{DirectionalDistribution, SurfaceDistribution};
+pub use distribution::{DirectionalDistribution, PhaseDistribution, SurfaceDistribution};
 pub use field::{GuidingField, SpatialCell};
 pub use filter::{DirectionalFilter, SpatialFilter};
 pub use guide_probability::{
@@ -175,6 +178,7 @@ mod tests {
         check::<GuidingField>();
         check::<DirectionalDistribution<'static>>();
         check::<SurfaceDistribution<'static>>();
+        check::<PhaseDistribution<'static>>();
     }
 }
 

@@ -73,15 +73,23 @@ pub struct Sample {
     /// first roulette after this vertex and `s` its probability: `(Y² − (1 − s)·A²)/s`,
     /// `Y = A + s·(value − A)`, where the path survived it, and `A²` where it ended there.
     pub second_moment: Option<f32>,
+    /// Whether the vertex lies inside a participating medium (it scattered there, by a phase
+    /// function): the sample then goes to its leaf's guide of medium vertices (see
+    /// [`GuidingConfig::volumes`](crate::GuidingConfig::volumes)), and its mixture terms, if
+    /// any, are those of the guide and the phase function. Default `false`: a surface vertex.
+    #[serde(default)]
+    pub volume: bool,
 }
 
 /// A sample's terms of the one-sample mixture `q = a·p_guide + (1 − a)·p_bsdf`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MixtureTerms {
-    /// The full integrand at the direction, `L·f_s·|cos θ|` (a non-negative scalar, usually a
-    /// luminance): what the mixture estimator divides by `q`.
+    /// The full integrand at the direction, `L·f_s·|cos θ|` (at a medium vertex `L·p`, with
+    /// `p` the phase function; a non-negative scalar, usually a luminance): what the mixture
+    /// estimator divides by `q`.
     pub integrand: f32,
-    /// The BSDF sampling pdf of the direction (solid angle; 0 where the BSDF cannot sample it).
+    /// The BSDF sampling pdf of the direction (solid angle; 0 where the BSDF cannot sample it);
+    /// at a medium vertex, the phase function's.
     pub bsdf_pdf: f32,
     /// The guide's pdf of the direction ([`DirectionalDistribution::pdf`](crate::DirectionalDistribution::pdf)).
     pub guide_pdf: f32,
@@ -195,6 +203,9 @@ pub enum RejectReason {
     BadValue,
     /// The pdf was zero, negative, NaN or infinite (or a mixture pdf negative or not finite).
     BadPdf,
+    /// A medium sample ([`Sample::volume`]) was recorded into a field without volumes
+    /// ([`GuidingConfig::volumes`](crate::GuidingConfig::volumes)).
+    NoVolumeGuide,
 }
 
 impl std::fmt::Display for RejectReason {
@@ -205,6 +216,7 @@ impl std::fmt::Display for RejectReason {
             RejectReason::BadDirection => "the direction is zero or not finite",
             RejectReason::BadValue => "the value is negative or not finite",
             RejectReason::BadPdf => "the pdf is not positive and finite",
+            RejectReason::NoVolumeGuide => "a medium sample, and the field keeps no volume guides",
         })
     }
 }

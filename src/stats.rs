@@ -4,6 +4,9 @@ use crate::sample::RejectReason;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 
+/// How many [`RejectReason`]s there are.
+pub(crate) const REASONS: usize = 6;
+
 /// Counts of rejected samples, one per [`RejectReason`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Rejections {
@@ -17,6 +20,8 @@ pub struct Rejections {
     pub bad_value: u64,
     /// [`RejectReason::BadPdf`].
     pub bad_pdf: u64,
+    /// [`RejectReason::NoVolumeGuide`].
+    pub no_volume_guide: u64,
 }
 
 impl Rejections {
@@ -26,24 +31,26 @@ impl Rejections {
     }
 
     /// The counts in [`RejectReason`] order.
-    pub(crate) fn to_array(self) -> [u64; 5] {
+    pub(crate) fn to_array(self) -> [u64; REASONS] {
         [
             self.non_finite_position,
             self.out_of_bounds,
             self.bad_direction,
             self.bad_value,
             self.bad_pdf,
+            self.no_volume_guide,
         ]
     }
 
     /// Counts from an array in [`RejectReason`] order.
-    pub(crate) fn from_array(c: [u64; 5]) -> Self {
+    pub(crate) fn from_array(c: [u64; REASONS]) -> Self {
         Self {
             non_finite_position: c[0],
             out_of_bounds: c[1],
             bad_direction: c[2],
             bad_value: c[3],
             bad_pdf: c[4],
+            no_volume_guide: c[5],
         }
     }
 
@@ -71,8 +78,14 @@ pub struct FieldStats {
     pub directional_leaves: u64,
     /// Depth of the deepest sampling quadtree leaf (the root's children are 1).
     pub directional_depth: u32,
-    /// Samples recorded in the current iteration.
+    /// Interior nodes over the sampling quadtrees of medium vertices (counted in
+    /// `directional_nodes` too; see [`GuidingConfig::volumes`](crate::GuidingConfig::volumes)).
+    pub volume_directional_nodes: u64,
+    /// Samples recorded in the current iteration (surface and medium).
     pub samples_recorded: u64,
+    /// Medium samples ([`Sample::volume`](crate::Sample::volume)) recorded in the current
+    /// iteration.
+    pub volume_samples_recorded: u64,
     /// Samples recorded over the field's life, the current iteration included.
     pub samples_recorded_total: u64,
     /// Continuations recorded in the current iteration
@@ -91,8 +104,8 @@ pub struct FieldStats {
     pub surface_products: u64,
     /// Nodes of those products.
     pub surface_product_nodes: u64,
-    /// Spatial leaves whose guide is off: it did not pay for its cost there in the last
-    /// iteration that could tell (see
+    /// Guides (of surface or medium vertices) that are off: they did not pay for their cost in
+    /// the last iteration that could tell (see
     /// [`GuidingConfig::guide_cost`](crate::GuidingConfig::guide_cost)).
     pub guides_off: u64,
     /// Samples and continuations recorded with a weight clamped to the range of the field's
@@ -103,7 +116,7 @@ pub struct FieldStats {
 
 /// Lock-free rejection counters (bad input is rare, so they are not contended).
 #[derive(Debug, Default)]
-pub(crate) struct RejectCounters([AtomicU64; 5]);
+pub(crate) struct RejectCounters([AtomicU64; REASONS]);
 
 impl RejectCounters {
     #[cold]

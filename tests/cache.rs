@@ -1,6 +1,7 @@
 //! The cache: round trips exactly, refuses every malformed input with an error (never a
 //! panic), keeps reading old files, and merges workers' statistics exactly.
 
+use common::{assemble, parts};
 use glam::Vec3;
 use sdguide::MAX_GUIDE_PROBABILITY;
 use sdguide::{
@@ -8,6 +9,8 @@ use sdguide::{
     MergeError, Refinement, Sample,
 };
 use sdguide_lab::rng::Rng;
+
+mod common;
 use sdguide_lab::synthetic::{Bsdf, LightField, Workload, room_bounds, room_vertex};
 
 fn workload() -> Workload {
@@ -196,67 +199,19 @@ fn every_truncation_and_every_byte_flip_is_an_error() {
     assert!(GuidingField::from_bytes(&flipped).is_ok());
 }
 
-/// The section table of a cache: (kind, flags, offset, length).
-fn sections(bytes: &[u8]) -> Vec<(u32, u32, u64, u64)> {
-    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-    let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap());
-    (0..u32_at(16) as usize)
-        .map(|k| {
-            let e = 32 + 24 * k;
-            (u32_at(e), u32_at(e + 4), u64_at(e + 8), u64_at(e + 16))
-        })
-        .collect()
-}
-
-/// Rebuilds a cache from a version and sections, with a correct length and checksum: how a
-/// newer writer, or a forger, would.
-fn assemble(version: (u16, u16), parts: &[(u32, u32, Vec<u8>)]) -> Vec<u8> {
-    let table_end = 32 + 24 * parts.len();
-    let total = table_end + parts.iter().map(|p| p.2.len()).sum::<usize>() + 4;
-    let mut out = sdguide::MAGIC.to_vec();
-    out.extend_from_slice(&version.0.to_le_bytes());
-    out.extend_from_slice(&version.1.to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
-    out.extend_from_slice(&(parts.len() as u32).to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
-    out.extend_from_slice(&(total as u64).to_le_bytes());
-    let mut offset = table_end as u64;
-    for (kind, flags, body) in parts {
-        out.extend_from_slice(&kind.to_le_bytes());
-        out.extend_from_slice(&flags.to_le_bytes());
-        out.extend_from_slice(&offset.to_le_bytes());
-        out.extend_from_slice(&(body.len() as u64).to_le_bytes());
-        offset += body.len() as u64;
-    }
-    for (_, _, body) in parts {
-        out.extend_from_slice(body);
-    }
-    let crc = crc32fast::hash(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
-}
-
-/// The sections of a real cache as (kind, flags, body).
-fn parts(bytes: &[u8]) -> Vec<(u32, u32, Vec<u8>)> {
-    sections(bytes)
-        .into_iter()
-        .map(|(k, f, o, l)| (k, f, bytes[o as usize..(o + l) as usize].to_vec()))
-        .collect()
-}
-
 #[test]
 fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((3, 0), &parts(&bytes)),
+        assemble((3, 1), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
     // Without the continuations (an optional section): it loads, with no continuation
     // estimates and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 6).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 0), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 1), &without)).unwrap();
     assert_eq!(older.stats().continuations_recorded, 0);
     assert!(
         older
@@ -267,23 +222,23 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     // Without the surface tallies: it loads, with no stored products (queries take the
     // per-query product), and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 7).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 0), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 1), &without)).unwrap();
     assert!(field.stats().surface_products > 0);
     assert_eq!(older.stats().surface_products, 0);
     for (a, b) in field.cells().zip(older.cells()) {
         assert_eq!(a.distribution().leaves(), b.distribution().leaves());
     }
-    // A 3.1 file with an optional section this reader does not know, and a longer META.
+    // A 3.2 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
     newer.insert(1, (99, 0, vec![1, 2, 3]));
-    let loaded = GuidingField::from_bytes(&assemble((3, 1), &newer)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((3, 2), &newer)).unwrap();
     assert_same(&field, &loaded);
     // An unknown section marked required is refused.
     let mut required = parts(&bytes);
     required.push((99, 1, vec![]));
     assert!(matches!(
-        GuidingField::from_bytes(&assemble((3, 1), &required)),
+        GuidingField::from_bytes(&assemble((3, 2), &required)),
         Err(CacheError::Corrupt {
             section: "sections",
             ..
@@ -291,7 +246,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((4, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((4, 0), (3, 0)));
+            assert_eq!((found, supported), ((4, 0), (3, 1)));
         }
         other => panic!("{other:?}"),
     }
@@ -306,7 +261,7 @@ fn forge(bytes: &[u8], kind: u32, at: usize, value: [u8; 4]) -> Result<GuidingFi
     let mut p = parts(bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == kind).unwrap().2;
     body[at..at + 4].copy_from_slice(&value);
-    GuidingField::from_bytes(&assemble((3, 0), &p))
+    GuidingField::from_bytes(&assemble((3, 1), &p))
 }
 
 #[test]
@@ -352,7 +307,7 @@ fn forged_files_with_valid_checksums_are_still_refused() {
     body[4 + 16..4 + 56].fill(0);
     body[4 + 24..4 + 28].copy_from_slice(&3.0f32.to_le_bytes());
     corrupt(
-        GuidingField::from_bytes(&assemble((3, 0), &p)),
+        GuidingField::from_bytes(&assemble((3, 1), &p)),
         "surfaces",
         "normal",
     );
@@ -512,7 +467,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (3, 0)));
+            assert_eq!((found, supported), ((1, 0), (3, 1)));
         }
         other => panic!("{other:?}"),
     }
@@ -840,4 +795,20 @@ fn merging_fields_that_did_not_start_together_is_refused_untouched() {
         Err(MergeError::TopologyDiffers { .. })
     ));
     assert_same(&a, &base);
+}
+
+#[test]
+fn a_three_zero_file_loads_as_a_field_without_volumes() {
+    // 3.0 is 3.1 without the META's last 24 bytes (flags, the medium samples' rejection
+    // counters) and without volume sections.
+    let field = small_field();
+    let bytes = field.to_bytes();
+    let mut older = parts(&bytes);
+    assert!(older.iter().all(|p| p.0 < 10));
+    let meta = &mut older[0].2;
+    meta.truncate(meta.len() - 24);
+    let loaded = GuidingField::from_bytes(&assemble((3, 0), &older)).unwrap();
+    assert!(!loaded.config().volumes);
+    assert_same(&field, &loaded);
+    assert_eq!(loaded.to_bytes(), bytes);
 }

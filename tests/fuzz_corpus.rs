@@ -64,7 +64,8 @@ fn write_seed_corpus() {
         directional_filter: sdguide::DirectionalFilter::DeferredBox,
         ..GuidingConfig::default()
     };
-    let mut field = GuidingField::new(sdguide_lab::synthetic::room_bounds(), small).unwrap();
+    let mut field =
+        GuidingField::new(sdguide_lab::synthetic::room_bounds(), small.clone()).unwrap();
     let work = sdguide_lab::synthetic::Workload {
         light: sdguide_lab::synthetic::LightField::standard(),
         lobe_noise: 2.0,
@@ -81,7 +82,31 @@ fn write_seed_corpus() {
         value: 2.0,
         cost: 3.0,
     });
-    std::fs::write(dir.join("cache_load/trained-3.0"), field.to_bytes()).unwrap();
+    // (`trained-3.0`, written by the 3.0 writer, stays as a file of that minor version.)
+    std::fs::write(dir.join("cache_load/trained-3.1"), field.to_bytes()).unwrap();
+    // The same workload with volume guides: a third of the samples are medium ones.
+    let mut volumes = GuidingField::new(
+        sdguide_lab::synthetic::room_bounds(),
+        GuidingConfig {
+            volumes: true,
+            ..small
+        },
+    )
+    .unwrap();
+    for iteration in 0..3u64 {
+        let mut rng = sdguide_lab::rng::Rng::new(iteration);
+        for i in 0..400 {
+            let sample = sdguide::Sample {
+                volume: i % 3 == 0,
+                ..work.draw(&volumes, &mut rng)
+            };
+            volumes.record(&sample);
+        }
+        if iteration < 2 {
+            volumes.refine();
+        }
+    }
+    std::fs::write(dir.join("cache_load/volumes-3.1"), volumes.to_bytes()).unwrap();
 
     // field_ops: a training session, bad inputs, and an absurd configuration.
     let config = |c: f32, rho: f32, depth: u8, eps: f32, nodes: u16, spatial: u16, mem: u8| {
@@ -173,6 +198,26 @@ fn write_seed_corpus() {
         normals.push(if round == 1 { 4 } else { 2 });
     }
     std::fs::write(dir.join("field_ops/normals-continuations"), normals).unwrap();
+
+    // A field with volume guides (filters byte: bit 5, and the box filter): medium samples
+    // with mixture terms, queries of the phase product, refines and round trips.
+    let mut media = config(200.0, 0.01, 20, 0.01, 8192, 4096, 64);
+    floats(&mut media, &[0.5]);
+    media.push(0x20 | 0x04);
+    for round in 0..3 {
+        for i in 0..80u32 {
+            let t = (i as f32 + 0.5) / 80.0;
+            media.push(0);
+            floats(&mut media, &[t, 1.0 - t, (t * 3.0).fract()]);
+            floats(&mut media, &[-1.0, 0.2 * t, 0.1]);
+            floats(&mut media, &[0.5 + t, 0.3]);
+            media.push(0x80 | 0x10 | (i % 4) as u8);
+            media.push(3);
+            floats(&mut media, &[t, 0.5, 1.0 - t, t, 0.7, 2.0 * t - 1.0]);
+        }
+        media.push(if round == 1 { 4 } else { 2 });
+    }
+    std::fs::write(dir.join("field_ops/volumes"), media).unwrap();
 
     let mut absurd = config(1.0, 1e-30, 20, 1e-30, 65535, 65535, 1);
     for i in 0..100 {

@@ -61,6 +61,13 @@
 #define SDG_CONFIG_GUIDE_COST 1
 
 /*
+ In `sdg_config::flags`: every spatial leaf keeps a second guide for vertices inside
+ participating media (see the Rust `GuidingConfig::volumes`, `sdg_field_volume_distribution`
+ and `SDG_SAMPLE_VOLUME`).
+ */
+#define SDG_CONFIG_VOLUMES 2
+
+/*
  In `sdg_sample::flags`: `integrand`, `bsdf_pdf` and `guide_pdf` are set.
  */
 #define SDG_SAMPLE_MIXTURE 1
@@ -74,6 +81,14 @@
  In `sdg_sample::flags`: `second_moment` is set.
  */
 #define SDG_SAMPLE_SECOND_MOMENT 4
+
+/*
+ In `sdg_sample::flags` and `sdg_path_vertex::flags`: the vertex lies inside a participating
+ medium, and the sample goes to its leaf's volume guide (see the Rust `Sample::volume`); the
+ mixture terms are then the phase function's. A field without `SDG_CONFIG_VOLUMES` rejects
+ it (counted in `sdg_stats::rejected_no_volume_guide`).
+ */
+#define SDG_SAMPLE_VOLUME 8
 
 /*
  Splitting mode: Russian roulette only (factors up to 1).
@@ -235,7 +250,8 @@ typedef struct {
    */
   float guide_cost;
   /*
-   Which optional fields are set: `SDG_CONFIG_GUIDE_COST` or 0.
+   Which optional fields and switches are set: `SDG_CONFIG_GUIDE_COST`,
+   `SDG_CONFIG_VOLUMES`, or'ed; 0 for none.
    */
   uint32_t flags;
 } sdg_config;
@@ -291,7 +307,7 @@ typedef struct {
   float second_moment;
   /*
    Which optional fields are set: `SDG_SAMPLE_MIXTURE`, `SDG_SAMPLE_NORMAL`,
-   `SDG_SAMPLE_SECOND_MOMENT`, or'ed; 0 for none.
+   `SDG_SAMPLE_SECOND_MOMENT`, `SDG_SAMPLE_VOLUME`, or'ed; 0 for none.
    */
   uint32_t flags;
 } sdg_sample;
@@ -408,6 +424,19 @@ typedef struct {
    exact sums (above 2^48), over the field's life.
    */
   uint64_t clamped_samples;
+  /*
+   Medium samples (`SDG_SAMPLE_VOLUME`) rejected over the field's life because it keeps no
+   volume guides (`SDG_CONFIG_VOLUMES`).
+   */
+  uint64_t rejected_no_volume_guide;
+  /*
+   Medium samples recorded in the current iteration (counted in `samples_recorded` too).
+   */
+  uint64_t volume_samples_recorded;
+  /*
+   Interior nodes over the volume guides' quadtrees (counted in `directional_nodes` too).
+   */
+  uint64_t volume_directional_nodes;
 } sdg_stats;
 
 /*
@@ -445,7 +474,8 @@ typedef struct {
    */
   float guide_pdf;
   /*
-   `SDG_SAMPLE_NORMAL`, `SDG_SAMPLE_MIXTURE`, or'ed; 0 for none.
+   `SDG_SAMPLE_NORMAL`, `SDG_SAMPLE_MIXTURE`, `SDG_SAMPLE_VOLUME` (a medium vertex:
+   `bsdf` is the phase function's value, `bsdf_pdf` its pdf), or'ed; 0 for none.
    */
   uint32_t flags;
 } sdg_path_vertex;
@@ -604,6 +634,20 @@ sdg_status sdg_field_distribution(const sdg_field *field,
                                   sdg_distribution **out);
 
 /*
+ Takes the distribution of the volume guide at `position`, for a vertex inside a
+ participating medium (see the Rust `GuidingField::volume_distribution`): sample it with
+ `sdg_distribution_set_phase` set, and mix it with phase-function sampling by
+ `sdg_distribution_guide_probability` (0 in a field without `SDG_CONFIG_VOLUMES`, whose
+ volume distribution is uniform). It holds the field's lock shared until destroyed.
+
+ # Safety
+ `field` must be null or valid; `out` must be null or valid for writing a pointer.
+ */
+sdg_status sdg_field_volume_distribution(const sdg_field *field,
+                                         sdg_vec3 position,
+                                         sdg_distribution **out);
+
+/*
  Makes the distribution its product with the clamped cosine `max(0, n·ω)` about the surface
  normal `normal` (any length; it is normalized), for a vertex on a surface that only
  reflects: later `sdg_distribution_sample` and `sdg_distribution_pdf` calls sample and
@@ -615,6 +659,20 @@ sdg_status sdg_field_distribution(const sdg_field *field,
  `dist` must be null or a live distribution, not used by another thread during the call.
  */
 sdg_status sdg_distribution_set_normal(sdg_distribution *dist, sdg_vec3 normal);
+
+/*
+ Makes a volume distribution its product with the Henyey–Greenstein phase function of
+ asymmetry `g` about `travel`, the direction the path travelled to reach the vertex (see the
+ Rust `DirectionalDistribution::with_phase`): later `sdg_distribution_sample` and
+ `sdg_distribution_pdf` calls sample and evaluate the product. `g` beyond ±0.999 is clamped
+ to it; `g = 0` or a zero `travel` restores the plain distribution; a non-finite `travel` or
+ `g` is refused (`SDG_STATUS_INVALID_ARGUMENT`), and so is a distribution from
+ `sdg_field_distribution` (a surface's), leaving the distribution as it was.
+
+ # Safety
+ `dist` must be null or a live distribution, not used by another thread during the call.
+ */
+sdg_status sdg_distribution_set_phase(sdg_distribution *dist, sdg_vec3 travel, float g);
 
 /*
  Draws a direction from a distribution (see `sdg_field_sample`; with a normal set, from its
@@ -639,8 +697,8 @@ sdg_status sdg_distribution_sample(const sdg_distribution *dist,
 sdg_status sdg_distribution_pdf(const sdg_distribution *dist, sdg_vec3 direction, float *pdf);
 
 /*
- The learned probability of sampling the guide rather than the BSDF at the distribution's
- position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
+ The learned probability of sampling the guide rather than the BSDF (for a volume
+ distribution: the phase function) at the distribution's position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
  configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
  mixture terms; 0 where the field turned the guide off (`guide_cost`): sample the BSDF
  alone there, and skip the guide's pdf unless the pass records.
@@ -648,7 +706,8 @@ sdg_status sdg_distribution_pdf(const sdg_distribution *dist, sdg_vec3 direction
  # Safety
  `dist` must be null or a live distribution; `probability` null or valid for writes.
  */
-sdg_status sdg_distribution_guide_probability(const sdg_distribution *dist, float *probability);
+sdg_status sdg_distribution_guide_probability(const sdg_distribution *dist,
+                                              float *probability);
 
 /*
  Destroys a distribution, releasing its hold on the field. Null is ignored.

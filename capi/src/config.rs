@@ -67,12 +67,17 @@ pub struct sdg_config {
     /// turns it off (guide probability 0). Read only with `SDG_CONFIG_GUIDE_COST` in `flags`;
     /// without it the guide never turns off.
     pub guide_cost: f32,
-    /// Which optional fields are set: `SDG_CONFIG_GUIDE_COST` or 0.
+    /// Which optional fields and switches are set: `SDG_CONFIG_GUIDE_COST`,
+    /// `SDG_CONFIG_VOLUMES`, or'ed; 0 for none.
     pub flags: u32,
 }
 
 /// In `sdg_config::flags`: `guide_cost` is set (without it, the guide never turns off).
 pub const SDG_CONFIG_GUIDE_COST: u32 = 1;
+/// In `sdg_config::flags`: every spatial leaf keeps a second guide for vertices inside
+/// participating media (see the Rust `GuidingConfig::volumes`, `sdg_field_volume_distribution`
+/// and `SDG_SAMPLE_VOLUME`).
+pub const SDG_CONFIG_VOLUMES: u32 = 2;
 
 /// The C codes of a library enum, in one table that both conversions read.
 struct Codes<T: 'static> {
@@ -173,7 +178,7 @@ impl sdg_config {
                 SDG_CONFIG_GUIDE_COST
             } else {
                 0
-            },
+            } | if c.volumes { SDG_CONFIG_VOLUMES } else { 0 },
         }))
     }
 
@@ -187,6 +192,7 @@ impl sdg_config {
             directional_filter: DIRECTIONAL_FILTERS.value(c.directional_filter)?,
             refinement: REFINEMENTS.value(c.refinement)?,
             guide_cost: (c.flags & SDG_CONFIG_GUIDE_COST != 0).then_some(c.guide_cost),
+            volumes: c.flags & SDG_CONFIG_VOLUMES != 0,
         }))
     }
 }

@@ -1,5 +1,6 @@
-//! The distribution handle: a position's distribution, with or without a surface normal,
-//! holding the field's lock shared while it lives.
+//! The distribution handle: a position's distribution — at a surface, with or without its
+//! normal, or inside a medium, with or without its phase function — holding the field's lock
+//! shared while it lives.
 
 use crate::error::finite_u;
 use crate::error::{arg, fail, finite, guard, put, sdg_status};
@@ -19,6 +20,10 @@ pub struct sdg_distribution {
     position: Vec3,
     /// The surface normal set by `sdg_distribution_set_normal` (zero: none).
     normal: Vec3,
+    /// From `sdg_field_volume_distribution`: the volume guide's.
+    volume: bool,
+    /// The direction of travel and `g` set by `sdg_distribution_set_phase` (zero: none).
+    phase: (Vec3, f32),
     /// The thread that made it, whose count of held distributions it is in.
     owner: std::thread::ThreadId,
 }
@@ -44,6 +49,38 @@ pub unsafe extern "C" fn sdg_field_distribution(
     position: sdg_vec3,
     out: *mut *mut sdg_distribution,
 ) -> sdg_status {
+    // SAFETY: the caller's contract.
+    unsafe { take_distribution(field, position, false, out) }
+}
+
+/// Takes the distribution of the volume guide at `position`, for a vertex inside a
+/// participating medium (see the Rust `GuidingField::volume_distribution`): sample it with
+/// `sdg_distribution_set_phase` set, and mix it with phase-function sampling by
+/// `sdg_distribution_guide_probability` (0 in a field without `SDG_CONFIG_VOLUMES`, whose
+/// volume distribution is uniform). It holds the field's lock shared until destroyed.
+///
+/// # Safety
+/// `field` must be null or valid; `out` must be null or valid for writing a pointer.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_field_volume_distribution(
+    field: *const sdg_field,
+    position: sdg_vec3,
+    out: *mut *mut sdg_distribution,
+) -> sdg_status {
+    // SAFETY: the caller's contract.
+    unsafe { take_distribution(field, position, true, out) }
+}
+
+/// `sdg_field_distribution` (`volume` false) and `sdg_field_volume_distribution`.
+///
+/// # Safety
+/// As theirs.
+unsafe fn take_distribution(
+    field: *const sdg_field,
+    position: sdg_vec3,
+    volume: bool,
+    out: *mut *mut sdg_distribution,
+) -> sdg_status {
     guard(|| {
         // SAFETY: the caller's contract.
         let f = unsafe { arg(field, "field") }?;
@@ -62,6 +99,8 @@ pub unsafe extern "C" fn sdg_field_distribution(
             field,
             position,
             normal: Vec3::ZERO,
+            volume,
+            phase: (Vec3::ZERO, 0.0),
             owner: std::thread::current().id(),
         });
         // SAFETY: non-null, valid for writes by the caller's contract.
@@ -95,13 +134,77 @@ pub unsafe extern "C" fn sdg_distribution_set_normal(
     })
 }
 
+/// Makes a volume distribution its product with the Henyey–Greenstein phase function of
+/// asymmetry `g` about `travel`, the direction the path travelled to reach the vertex (see the
+/// Rust `DirectionalDistribution::with_phase`): later `sdg_distribution_sample` and
+/// `sdg_distribution_pdf` calls sample and evaluate the product. `g` beyond ±0.999 is clamped
+/// to it; `g = 0` or a zero `travel` restores the plain distribution; a non-finite `travel` or
+/// `g` is refused (`SDG_STATUS_INVALID_ARGUMENT`), and so is a distribution from
+/// `sdg_field_distribution` (a surface's), leaving the distribution as it was.
+///
+/// # Safety
+/// `dist` must be null or a live distribution, not used by another thread during the call.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sdg_distribution_set_phase(
+    dist: *mut sdg_distribution,
+    travel: sdg_vec3,
+    g: f32,
+) -> sdg_status {
+    guard(|| {
+        if dist.is_null() {
+            return fail(sdg_status::NullPointer, "`dist` is null");
+        }
+        let travel = finite(travel.into(), "travel")?;
+        if !g.is_finite() {
+            return fail(sdg_status::InvalidArgument, "`g` is not finite");
+        }
+        // SAFETY: non-null, live and not shared during the call by the caller's contract.
+        let d = unsafe { &mut *dist };
+        if !d.volume {
+            return fail(
+                sdg_status::InvalidArgument,
+                "a phase function on a surface distribution (take it with \
+                 sdg_field_volume_distribution)",
+            );
+        }
+        d.phase = (travel, g);
+        Ok(sdg_status::Ok)
+    })
+}
+
 impl sdg_distribution {
-    /// What the distribution samples: the field's at its position, times the cosine if a
-    /// normal is set (a zero normal gives the plain distribution).
-    fn view(&self) -> sdguide::SurfaceDistribution<'_> {
+    /// `(direction, pdf)` of a draw from what the distribution samples: at a surface, the
+    /// field's at its position, times the cosine if a normal is set; in a medium, the volume
+    /// guide's, times the phase function if one is set.
+    fn sample(&self, u: Vec2) -> (Vec3, f32) {
+        if self.volume {
+            let (travel, g) = self.phase;
+            return self
+                .field
+                .volume_distribution(self.position)
+                .with_phase(travel, g)
+                .sample(u);
+        }
         self.field
             .distribution(self.position)
             .at_surface(self.normal)
+            .sample(u)
+    }
+
+    /// The pdf of `direction` under what the distribution samples.
+    fn pdf(&self, direction: Vec3) -> f32 {
+        if self.volume {
+            let (travel, g) = self.phase;
+            return self
+                .field
+                .volume_distribution(self.position)
+                .with_phase(travel, g)
+                .pdf(direction);
+        }
+        self.field
+            .distribution(self.position)
+            .at_surface(self.normal)
+            .pdf(direction)
     }
 }
 
@@ -122,7 +225,7 @@ pub unsafe extern "C" fn sdg_distribution_sample(
         // SAFETY: the caller's contract.
         let d = unsafe { arg(dist, "dist") }?;
         finite_u(u0, u1)?;
-        let (dir, p) = d.view().sample(Vec2::new(u0, u1));
+        let (dir, p) = d.sample(Vec2::new(u0, u1));
         // SAFETY: the caller's contract.
         unsafe { write_sample(direction, pdf, dir, p) }
     })
@@ -143,15 +246,15 @@ pub unsafe extern "C" fn sdg_distribution_pdf(
         // SAFETY: the caller's contract.
         let d = unsafe { arg(dist, "dist") }?;
         let dir = finite(direction.into(), "direction")?;
-        let p = d.view().pdf(dir);
+        let p = d.pdf(dir);
         // SAFETY: the caller's contract.
         unsafe { put(pdf, "pdf", p) }?;
         Ok(sdg_status::Ok)
     })
 }
 
-/// The learned probability of sampling the guide rather than the BSDF at the distribution's
-/// position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
+/// The learned probability of sampling the guide rather than the BSDF (for a volume
+/// distribution: the phase function) at the distribution's position, for the one-sample mixture `a·p_guide + (1 − a)·p_bsdf`: between 0.05 and the
 /// configuration's `max_guide_probability`, 0.5 until learned from samples recorded with
 /// mixture terms; 0 where the field turned the guide off (`guide_cost`): sample the BSDF
 /// alone there, and skip the guide's pdf unless the pass records.
@@ -166,7 +269,11 @@ pub unsafe extern "C" fn sdg_distribution_guide_probability(
     guard(|| {
         // SAFETY: the caller's contract.
         let d = unsafe { arg(dist, "dist") }?;
-        let a = d.field.distribution(d.position).guide_probability();
+        let a = if d.volume {
+            d.field.volume_distribution(d.position).guide_probability()
+        } else {
+            d.field.distribution(d.position).guide_probability()
+        };
         // SAFETY: the caller's contract.
         unsafe { put(probability, "probability", a) }?;
         Ok(sdg_status::Ok)

@@ -316,6 +316,13 @@ pub struct sdg_stats {
     /// Samples and continuations recorded with a weight clamped to the range of the field's
     /// exact sums (above 2^48), over the field's life.
     pub clamped_samples: u64,
+    /// Medium samples (`SDG_SAMPLE_VOLUME`) rejected over the field's life because it keeps no
+    /// volume guides (`SDG_CONFIG_VOLUMES`).
+    pub rejected_no_volume_guide: u64,
+    /// Medium samples recorded in the current iteration (counted in `samples_recorded` too).
+    pub volume_samples_recorded: u64,
+    /// Interior nodes over the volume guides' quadtrees (counted in `directional_nodes` too).
+    pub volume_directional_nodes: u64,
 }
 
 /// Writes the field's statistics to `*out`.
@@ -354,6 +361,9 @@ pub unsafe extern "C" fn sdg_field_stats(
             directional_splits_refused: s.directional_splits_refused,
             bytes: s.bytes,
             clamped_samples: s.clamped_samples,
+            rejected_no_volume_guide: r.no_volume_guide,
+            volume_samples_recorded: s.volume_samples_recorded,
+            volume_directional_nodes: s.volume_directional_nodes,
         };
         // SAFETY: the caller's contract.
         unsafe { put(out, "out", stats) }?;

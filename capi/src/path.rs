@@ -4,7 +4,7 @@
 use crate::error::{Failure, fail, guard, put, sdg_status};
 use crate::field::{destroy, sdg_field};
 use crate::lock::shared;
-use crate::types::{SDG_SAMPLE_MIXTURE, SDG_SAMPLE_NORMAL, sdg_vec3};
+use crate::types::{SDG_SAMPLE_MIXTURE, SDG_SAMPLE_NORMAL, SDG_SAMPLE_VOLUME, sdg_vec3};
 use sdguide::{PathRecorder, PathVertex, VertexId};
 
 /// A path recorder (opaque): one per render thread, reused for every camera sample. Create
@@ -33,7 +33,8 @@ pub struct sdg_path_vertex {
     pub bsdf_pdf: f32,
     /// The guide's pdf of `direction` (the product's where the renderer samples it).
     pub guide_pdf: f32,
-    /// `SDG_SAMPLE_NORMAL`, `SDG_SAMPLE_MIXTURE`, or'ed; 0 for none.
+    /// `SDG_SAMPLE_NORMAL`, `SDG_SAMPLE_MIXTURE`, `SDG_SAMPLE_VOLUME` (a medium vertex:
+    /// `bsdf` is the phase function's value, `bsdf_pdf` its pdf), or'ed; 0 for none.
     pub flags: u32,
 }
 
@@ -66,6 +67,9 @@ impl sdg_path_vertex {
         }
         if self.flags & SDG_SAMPLE_MIXTURE != 0 {
             v = v.with_mixture(self.bsdf_pdf, self.guide_pdf);
+        }
+        if self.flags & SDG_SAMPLE_VOLUME != 0 {
+            v = v.in_volume();
         }
         v
     }

@@ -65,7 +65,7 @@ pub struct sdg_sample {
     /// with `SDG_SAMPLE_SECOND_MOMENT` in `flags`; without it `value²` is used.
     pub second_moment: f32,
     /// Which optional fields are set: `SDG_SAMPLE_MIXTURE`, `SDG_SAMPLE_NORMAL`,
-    /// `SDG_SAMPLE_SECOND_MOMENT`, or'ed; 0 for none.
+    /// `SDG_SAMPLE_SECOND_MOMENT`, `SDG_SAMPLE_VOLUME`, or'ed; 0 for none.
     pub flags: u32,
 }
 
@@ -75,6 +75,11 @@ pub const SDG_SAMPLE_MIXTURE: u32 = 1;
 pub const SDG_SAMPLE_NORMAL: u32 = 2;
 /// In `sdg_sample::flags`: `second_moment` is set.
 pub const SDG_SAMPLE_SECOND_MOMENT: u32 = 4;
+/// In `sdg_sample::flags` and `sdg_path_vertex::flags`: the vertex lies inside a participating
+/// medium, and the sample goes to its leaf's volume guide (see the Rust `Sample::volume`); the
+/// mixture terms are then the phase function's. A field without `SDG_CONFIG_VOLUMES` rejects
+/// it (counted in `sdg_stats::rejected_no_volume_guide`).
+pub const SDG_SAMPLE_VOLUME: u32 = 8;
 
 impl sdg_sample {
     /// The library sample this one means (the library checks it when recording).
@@ -87,6 +92,7 @@ impl sdg_sample {
             pdf: self.pdf,
             normal: has(SDG_SAMPLE_NORMAL).then_some(self.normal.into()),
             second_moment: has(SDG_SAMPLE_SECOND_MOMENT).then_some(self.second_moment),
+            volume: has(SDG_SAMPLE_VOLUME),
             ..Sample::default()
         };
         if has(SDG_SAMPLE_MIXTURE) {

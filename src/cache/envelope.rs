@@ -33,17 +33,25 @@ pub(super) fn write_envelope(sections: &[(u32, u32, Vec<u8>)]) -> Vec<u8> {
     out.0
 }
 
-/// The sections of a file (the first three required), and its major version.
-pub(super) struct Sections<'a> {
-    pub(super) meta: &'a [u8],
-    pub(super) spatial: &'a [u8],
-    pub(super) directional: &'a [u8],
+/// The sections of one kind of guide (surface or volume): its trees and the sums beside them.
+#[derive(Default)]
+pub(super) struct GuideSections<'a> {
+    pub(super) directional: Option<&'a [u8]>,
     pub(super) selection: Option<&'a [u8]>,
-    pub(super) continuations: Option<&'a [u8]>,
-    pub(super) surfaces: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
     pub(super) guide_cost: Option<&'a [u8]>,
     pub(super) pending: Option<&'a [u8]>,
+}
+
+/// The sections of a file (`META`, `SPATIAL` and `DIRECTIONAL` required), and its major
+/// version.
+pub(super) struct Sections<'a> {
+    pub(super) meta: &'a [u8],
+    pub(super) spatial: &'a [u8],
+    pub(super) surface: GuideSections<'a>,
+    pub(super) volume: GuideSections<'a>,
+    pub(super) continuations: Option<&'a [u8]>,
+    pub(super) surfaces: Option<&'a [u8]>,
     /// The file's major version: 2.x files hold their sums as `f64`.
     pub(super) major: u16,
 }
@@ -104,9 +112,8 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         .filter(|&t| t <= body_end)
         .ok_or_else(|| corrupt("sections", format!("{section_count} entries do not fit")))?;
     let mut table = In::new(&bytes[HEADER_LEN..table_end], "sections");
-    let (mut meta, mut spatial, mut directional) = (None, None, None);
-    let (mut selection, mut quadrants, mut continuations) = (None, None, None);
-    let (mut surfaces, mut guide_cost, mut pending) = (None, None, None);
+    let (mut meta, mut spatial, mut continuations, mut surfaces) = (None, None, None, None);
+    let (mut surface, mut volume) = (GuideSections::default(), GuideSections::default());
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
             (table.u32()?, table.u32()?, table.u64()?, table.u64()?);
@@ -124,13 +131,18 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         let slot = match kind {
             SECTION_META => &mut meta,
             SECTION_SPATIAL => &mut spatial,
-            SECTION_DIRECTIONAL => &mut directional,
-            SECTION_SELECTION => &mut selection,
-            SECTION_QUADRANTS => &mut quadrants,
+            SECTION_DIRECTIONAL => &mut surface.directional,
+            SECTION_SELECTION => &mut surface.selection,
+            SECTION_QUADRANTS => &mut surface.quadrants,
             SECTION_CONTINUATIONS => &mut continuations,
             SECTION_SURFACES => &mut surfaces,
-            SECTION_GUIDE_COST => &mut guide_cost,
-            SECTION_PENDING => &mut pending,
+            SECTION_GUIDE_COST => &mut surface.guide_cost,
+            SECTION_PENDING => &mut surface.pending,
+            SECTION_VOLUME_DIRECTIONAL => &mut volume.directional,
+            SECTION_VOLUME_SELECTION => &mut volume.selection,
+            SECTION_VOLUME_QUADRANTS => &mut volume.quadrants,
+            SECTION_VOLUME_GUIDE_COST => &mut volume.guide_cost,
+            SECTION_VOLUME_PENDING => &mut volume.pending,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -147,16 +159,16 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         }
     }
     let missing = |name: &str| corrupt("sections", format!("no {name} section"));
+    if surface.directional.is_none() {
+        return Err(missing("directional"));
+    }
     Ok(Sections {
         meta: meta.ok_or_else(|| missing("meta"))?,
         spatial: spatial.ok_or_else(|| missing("spatial"))?,
-        directional: directional.ok_or_else(|| missing("directional"))?,
-        selection,
-        quadrants,
+        surface,
+        volume,
         continuations,
         surfaces,
-        guide_cost,
-        pending,
         major: version.0,
     })
 }

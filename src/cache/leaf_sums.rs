@@ -6,7 +6,7 @@
 
 use super::*;
 
-pub(super) fn encode_selection(trees: &[Region]) -> Vec<u8> {
+pub(super) fn encode_selection(trees: &[impl GuideView]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + SELECTION_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
@@ -23,7 +23,7 @@ pub(super) fn encode_selection(trees: &[Region]) -> Vec<u8> {
 /// Reads the optional selection section into `trees` (already decoded).
 pub(super) fn decode_selection(
     bytes: &[u8],
-    trees: &mut [Region],
+    trees: &mut [impl GuideViewMut],
     major: u16,
 ) -> Result<(), CacheError> {
     let mut r = In::with_sums(bytes, "selection", major);
@@ -55,7 +55,7 @@ pub(super) fn decode_selection(
     Ok(())
 }
 
-pub(super) fn encode_guide_cost(trees: &[Region]) -> Vec<u8> {
+pub(super) fn encode_guide_cost(trees: &[impl GuideView]) -> Vec<u8> {
     let mut out = Out(Vec::with_capacity(4 + GUIDE_COST_LEN * trees.len()));
     out.u32(trees.len() as u32);
     for t in trees {
@@ -74,7 +74,7 @@ pub(super) fn encode_guide_cost(trees: &[Region]) -> Vec<u8> {
 /// too).
 pub(super) fn decode_guide_cost(
     bytes: &[u8],
-    trees: &mut [Region],
+    trees: &mut [impl GuideViewMut],
     major: u16,
 ) -> Result<(), CacheError> {
     let mut r = In::with_sums(bytes, "guide cost", major);
@@ -110,7 +110,7 @@ pub(super) fn decode_guide_cost(
     Ok(())
 }
 
-pub(super) fn encode_quadrants(trees: &[Region]) -> Vec<u8> {
+pub(super) fn encode_quadrants(trees: &[impl GuideView]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
@@ -127,7 +127,7 @@ pub(super) fn encode_quadrants(trees: &[Region]) -> Vec<u8> {
 /// Reads the optional quadrants section into `trees` (already decoded).
 pub(super) fn decode_quadrants(
     bytes: &[u8],
-    trees: &mut [Region],
+    trees: &mut [impl GuideViewMut],
     major: u16,
 ) -> Result<(), CacheError> {
     let section = "quadrants";
@@ -356,7 +356,7 @@ pub(super) fn decode_surfaces(
     Ok(())
 }
 
-pub(super) fn encode_pending(trees: &[Region]) -> Vec<u8> {
+pub(super) fn encode_pending(trees: &[impl GuideView]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
@@ -372,7 +372,10 @@ pub(super) fn encode_pending(trees: &[Region]) -> Vec<u8> {
 
 /// Reads the optional pending section into `trees` (already decoded, their pending sums
 /// prepared for the configured filter: a leaf count of 0 or the tree's).
-pub(super) fn decode_pending(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
+pub(super) fn decode_pending(
+    bytes: &[u8],
+    trees: &mut [impl GuideViewMut],
+) -> Result<(), CacheError> {
     let section = "pending";
     let mut r = In::new(bytes, section);
     let n = r.count(4, "trees")?;

@@ -28,8 +28,9 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.u64(field.recorded_before);
     out.u64(field.spatial_refused);
     out.u64(field.directional_refused);
-    for counts in [field.rejected_before, field.rejected.get()] {
-        for c in counts.to_array() {
+    let rejected = [field.rejected_before, field.rejected.get()].map(Rejections::to_array);
+    for counts in rejected {
+        for &c in &counts[..5] {
             out.u64(c);
         }
     }
@@ -62,6 +63,12 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     let (before, current) = field.clamped.parts();
     out.u64(before);
     out.u64(current);
+    debug_assert_eq!(out.0.len(), META_LEN_3_0);
+    out.u32(u32::from(c.volumes));
+    out.u32(0);
+    for counts in rejected {
+        out.u64(counts[5]);
+    }
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -97,16 +104,12 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     field.recorded_before = r.u64()?;
     field.spatial_refused = r.u64()?;
     field.directional_refused = r.u64()?;
-    let mut counts = [Rejections::default(); 2];
+    let mut counts = [[0u64; REASONS]; 2];
     for c in &mut counts {
-        let mut a = [0u64; 5];
-        for x in &mut a {
+        for x in &mut c[..5] {
             *x = r.u64()?;
         }
-        *c = Rejections::from_array(a);
     }
-    field.rejected_before = counts[0];
-    field.rejected = RejectCounters::from_rejections(counts[1]);
     // 1.1: shrinkage and filters. A 1.0 file trained without shrinkage (and unfiltered), and
     // keeps training so.
     if r.bytes.is_empty() {
@@ -162,6 +165,20 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     if !r.bytes.is_empty() {
         field.clamped = EventCount::from_parts(r.u64()?, r.u64()?);
     }
+    // 3.1: the flags (volumes) and the medium samples rejected for want of a volume guide. An
+    // older file has no volume guides.
+    if !r.bytes.is_empty() {
+        let flags = r.u32()?;
+        r.u32()?;
+        if flags > 1 {
+            return Err(corrupt("meta", format!("unknown flags {flags:#x}")));
+        }
+        field.config.volumes = flags == 1;
+        counts[0][5] = r.u64()?;
+        counts[1][5] = r.u64()?;
+    }
+    field.rejected_before = Rejections::from_array(counts[0]);
+    field.rejected = RejectCounters::from_rejections(Rejections::from_array(counts[1]));
     field
         .config
         .validate()

@@ -23,11 +23,11 @@ use crate::guide_probability::{
 use crate::moments::{AtomicPending, AtomicQuadrants, AtomicSums};
 use crate::quadtree::{self, RecordingTree, SLOTS, SamplingNode, SamplingTree, Tallied, WORDS};
 use crate::refinement::Refinement;
-use crate::region::Region;
+use crate::region::{Guide, GuideView, GuideViewMut, Region};
 use crate::rule::LeafRule;
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
 use crate::splitting::{ContinuationEstimate, ContinuationStats, ContinuationSums};
-use crate::stats::{EventCount, RejectCounters, Rejections};
+use crate::stats::{EventCount, REASONS, RejectCounters, Rejections};
 use glam::Vec3;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -64,8 +64,10 @@ pub const FORMAT_MAJOR: u16 = 3;
 /// The format's minor version: a reader loads any minor of its major, skipping what it does
 /// not know (optional sections, trailing bytes of a section). 3.0 is 2.6 with exact sums, the
 /// normal tally's buckets, the clamped-sample counters at the end of `META`, and the optional
-/// `PENDING` section (the deferred box filter's sums not yet spread).
-pub const FORMAT_MINOR: u16 = 0;
+/// `PENDING` section (the deferred box filter's sums not yet spread). 3.1 adds volume guides:
+/// the `volumes` flag and the medium samples' rejection counters at the end of `META`, and the
+/// `VOLUME_*` sections (required where the field has volumes; a 3.0 file has none).
+pub const FORMAT_MINOR: u16 = 1;
 /// The oldest major a reader loads (converting its sums).
 const LEGACY_MAJOR: u16 = 2;
 
@@ -97,6 +99,16 @@ const GUIDE_COST_LEN: usize = 40;
 /// 3.0: each directional leaf's sums the deferred box filter has yet to spread (optional: a
 /// reader without it spreads nothing it did not see).
 const SECTION_PENDING: u32 = 9;
+/// 3.1: the guides of medium vertices, one per spatial leaf, laid out as `DIRECTIONAL` (a
+/// required section where the field has volumes: a reader that skipped it would answer medium
+/// queries with a uniform guide).
+const SECTION_VOLUME_DIRECTIONAL: u32 = 10;
+/// 3.1: the volume guides' sections laid out as `SELECTION`, `QUADRANTS`, `GUIDE_COST` and
+/// `PENDING` (optional, as those are).
+const SECTION_VOLUME_SELECTION: u32 = 11;
+const SECTION_VOLUME_QUADRANTS: u32 = 12;
+const SECTION_VOLUME_GUIDE_COST: u32 = 13;
+const SECTION_VOLUME_PENDING: u32 = 14;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -109,10 +121,13 @@ const META_LEN_2_3: usize = 192;
 const META_LEN_2_5: usize = 196;
 /// Length of the `META` section in format 2.6.
 const META_LEN_2_6: usize = 200;
+/// Length of the `META` section in format 3.0.
+const META_LEN_3_0: usize = 216;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
 /// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound,
-/// 2.6 the guide's cost, 3.0 the clamped-sample counters).
-const META_LEN: usize = 216;
+/// 2.6 the guide's cost, 3.0 the clamped-sample counters, 3.1 the flags (bit 0: volumes) and
+/// the counters of medium samples rejected for want of a volume guide).
+const META_LEN: usize = 240;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -269,7 +284,24 @@ impl GuidingField {
             (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.regions)),
             (SECTION_PENDING, 0, encode_pending(&self.regions)),
         ];
-        write_envelope(&sections)
+        let volumes: Vec<&Guide> = self.regions.iter().filter_map(Region::volume).collect();
+        let volume_sections = [
+            (
+                SECTION_VOLUME_DIRECTIONAL,
+                FLAG_REQUIRED,
+                encode_directional(&volumes),
+            ),
+            (SECTION_VOLUME_SELECTION, 0, encode_selection(&volumes)),
+            (SECTION_VOLUME_QUADRANTS, 0, encode_quadrants(&volumes)),
+            (SECTION_VOLUME_GUIDE_COST, 0, encode_guide_cost(&volumes)),
+            (SECTION_VOLUME_PENDING, 0, encode_pending(&volumes)),
+        ];
+        let volume_sections = if self.config.volumes {
+            &volume_sections[..]
+        } else {
+            &[]
+        };
+        write_envelope(&[&sections[..], volume_sections].concat())
     }
 
     /// Reads a cache written by [`save`](Self::save). The loaded field answers `sample` and
@@ -297,25 +329,43 @@ impl GuidingField {
         let major = sections.major;
         let mut field = decode_meta(sections.meta)?;
         field.spatial = decode_spatial(sections.spatial, &field)?;
-        field.regions = decode_directional(sections.directional, &field, major)?;
-        if let Some(bytes) = sections.selection {
-            decode_selection(bytes, &mut field.regions, major)?;
-        }
-        if let Some(bytes) = sections.quadrants {
-            decode_quadrants(bytes, &mut field.regions, major)?;
-        }
+        let surface = &sections.surface;
+        let Some(directional) = surface.directional else {
+            return Err(corrupt("sections", "no directional section"));
+        };
+        let guides = decode_directional(directional, "directional", &field, major)?;
+        field.regions = guides
+            .into_iter()
+            .map(|g| Region::new(g.sampling, g.recording))
+            .collect();
+        let volumes = match (field.config.volumes, sections.volume.directional) {
+            (true, Some(bytes)) => Some(decode_directional(
+                bytes,
+                "volume directional",
+                &field,
+                major,
+            )?),
+            (false, None) => None,
+            (volumes, _) => {
+                return Err(corrupt(
+                    "sections",
+                    format!("volumes {volumes} in meta, and a volume section that says otherwise"),
+                ));
+            }
+        };
         if let Some(bytes) = sections.continuations {
             decode_continuations(bytes, &mut field.regions, major)?;
         }
         if let Some(bytes) = sections.surfaces {
             decode_surfaces(bytes, &mut field.regions, major)?;
         }
-        if let Some(bytes) = sections.guide_cost {
-            decode_guide_cost(bytes, &mut field.regions, major)?;
-        }
-        field.prepare_recording();
-        if let Some(bytes) = sections.pending {
-            decode_pending(bytes, &mut field.regions)?;
+        let deferred = field.config.directional_filter.defers();
+        decode_guide_sums(surface, &mut field.regions, major, deferred)?;
+        if let Some(mut volumes) = volumes {
+            decode_guide_sums(&sections.volume, &mut volumes, major, deferred)?;
+            for (region, guide) in field.regions.iter_mut().zip(volumes) {
+                *region = std::mem::take(region).with_volume(Some(guide));
+            }
         }
         Ok(field)
     }
@@ -377,5 +427,34 @@ fn sync_dir(dir: &Path) -> io::Result<()> {
     std::fs::File::open(dir)?.sync_all()?;
     #[cfg(not(unix))]
     let _ = dir;
+    Ok(())
+}
+
+/// Reads a guide's optional sections — selection, quadrant sums, guide cost, pending sums — into
+/// `guides` (decoded from the matching directional section), giving their recording trees
+/// pending sums first where the filter defers (`deferred`).
+fn decode_guide_sums(
+    sections: &envelope::GuideSections<'_>,
+    guides: &mut [impl GuideViewMut],
+    major: u16,
+    deferred: bool,
+) -> Result<(), CacheError> {
+    if let Some(bytes) = sections.selection {
+        decode_selection(bytes, guides, major)?;
+    }
+    if let Some(bytes) = sections.quadrants {
+        decode_quadrants(bytes, guides, major)?;
+    }
+    if let Some(bytes) = sections.guide_cost {
+        decode_guide_cost(bytes, guides, major)?;
+    }
+    if deferred {
+        for g in guides.iter_mut() {
+            g.recording_mut().defer();
+        }
+    }
+    if let Some(bytes) = sections.pending {
+        decode_pending(bytes, guides)?;
+    }
     Ok(())
 }

@@ -46,7 +46,7 @@ pub(super) fn decode_spatial(
     Ok(SpatialTree::from_nodes(field.spatial.cube(), nodes))
 }
 
-pub(super) fn encode_directional(trees: &[Region]) -> Vec<u8> {
+pub(super) fn encode_directional(trees: &[impl GuideView]) -> Vec<u8> {
     let mut out = Out(Vec::new());
     out.u32(trees.len() as u32);
     for t in trees {
@@ -80,24 +80,27 @@ pub(super) fn encode_directional(trees: &[Region]) -> Vec<u8> {
     out.0
 }
 
+/// Reads a `DIRECTIONAL` (or `VOLUME_DIRECTIONAL`, named `section`) section: one guide per
+/// spatial leaf.
 pub(super) fn decode_directional(
     bytes: &[u8],
+    section: &'static str,
     field: &GuidingField,
     major: u16,
-) -> Result<Vec<Region>, CacheError> {
-    let mut r = In::with_sums(bytes, "directional", major);
+) -> Result<Vec<Guide>, CacheError> {
+    let mut r = In::with_sums(bytes, section, major);
     let leaves = field.spatial.leaves().len();
     let n = r.count(12, "trees")?;
     if n != leaves {
         return Err(corrupt(
-            "directional",
+            section,
             format!("{n} trees for {leaves} spatial leaves"),
         ));
     }
     let c = &field.config;
     (0..n)
         .map(|i| {
-            decode_tree(&mut r, c).map_err(|e| match e {
+            decode_tree(&mut r, section, c).map_err(|e| match e {
                 CacheError::Corrupt { section, detail } => {
                     corrupt(section, format!("tree {i}: {detail}"))
                 }
@@ -107,8 +110,11 @@ pub(super) fn decode_directional(
         .collect()
 }
 
-pub(super) fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<Region, CacheError> {
-    let section = "directional";
+pub(super) fn decode_tree(
+    r: &mut In<'_>,
+    section: &'static str,
+    c: &GuidingConfig,
+) -> Result<Guide, CacheError> {
     // Interior node depth is at most max_depth − 1: their children, the leaves, reach max_depth.
     let max_node_depth = c.max_directional_depth - 1;
     let max_nodes = c.max_directional_nodes as usize;
@@ -182,7 +188,7 @@ pub(super) fn decode_tree(r: &mut In<'_>, c: &GuidingConfig) -> Result<Region, C
             (Sum::ZERO, 0),
         ]));
     }
-    Ok(Region::new(
+    Ok(Guide::new(
         SamplingTree::new(sampling.into_boxed_slice()),
         RecordingTree {
             nodes: nodes.into_boxed_slice(),

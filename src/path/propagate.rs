@@ -43,8 +43,9 @@ impl PathRecorder {
             direction: v.direction,
             value,
             pdf: v.pdf,
-            normal: v.normal,
+            normal: v.normal.filter(|_| !v.volume),
             second_moment: Some(node.first_roulette.second_moment(value)),
+            volume: v.volume,
             ..Sample::default()
         };
         if let Some(p) = v.pdfs {

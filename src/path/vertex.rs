@@ -60,15 +60,21 @@ pub struct PathVertex {
     /// The two techniques' pdfs of `direction` when the renderer sampled the one-sample
     /// mixture: what the cell's guide probability learns from (see [`Sample::with_mixture`]).
     pub pdfs: Option<TechniquePdfs>,
+    /// Whether the vertex scattered inside a participating medium: its sample goes to the
+    /// guide of medium vertices ([`Sample::volume`]); `bsdf` is then the phase function's
+    /// value (times the scattering albedo), and the technique pdf the phase function's.
+    pub volume: bool,
 }
 
-/// The BSDF's and the guide's pdfs of a direction drawn from their mixture.
+/// The BSDF's (or phase function's) and the guide's pdfs of a direction drawn from their
+/// mixture.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TechniquePdfs {
-    /// The BSDF sampling pdf (solid angle).
+    /// The BSDF sampling pdf (solid angle); at a medium vertex, the phase function's.
     pub bsdf: f32,
     /// The guide's pdf: the product's where the renderer samples
-    /// [`at_surface`](crate::DirectionalDistribution::at_surface), the plain one otherwise.
+    /// [`at_surface`](crate::DirectionalDistribution::at_surface) or
+    /// [`with_phase`](crate::DirectionalDistribution::with_phase), the plain one otherwise.
     pub guide: f32,
 }
 
@@ -83,7 +89,15 @@ impl PathVertex {
             bsdf,
             pdf,
             pdfs: None,
+            volume: false,
         }
+    }
+
+    /// The vertex as one inside a participating medium (see [`volume`](Self::volume)); a
+    /// normal it has is not recorded.
+    pub const fn in_volume(mut self) -> Self {
+        self.volume = true;
+        self
     }
 
     /// The vertex with its shading normal.

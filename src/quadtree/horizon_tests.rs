@@ -1,7 +1,8 @@
 //! Tests of `horizon`.
 
 use super::*;
-use crate::quadtree::testing::{assert_chi_square, random_sampling_tree, uniform};
+use crate::quadtree::product::tests::{assert_samples_the_product, final_cells};
+use crate::quadtree::testing::{random_sampling_tree, uniform};
 use crate::sphere::square_to_direction;
 
 #[test]
@@ -113,60 +114,6 @@ fn the_estimate_is_the_mean_over_the_corners_range_and_positive_where_it_may_rea
     }
 }
 
-/// A final cell of the product's descent.
-struct FinalCell {
-    cell: [u32; 2],
-    depth: u32,
-    /// The probability the descent gives it.
-    p: f64,
-    /// The first settled cell on the way down to it, and that cell's depth, if any.
-    settled_at: Option<([u32; 2], u32)>,
-}
-
-impl FinalCell {
-    /// The centre of the cell on the square.
-    fn centre(&self) -> Vec2 {
-        let size = 0.5f32.powi(self.depth as i32);
-        (Vec2::new(self.cell[0] as f32, self.cell[1] as f32) + 0.5) * size
-    }
-}
-
-/// Every final cell of the product's descent of positive probability, depth first.
-fn final_cells(tree: &SamplingTree, n: Vec3) -> Vec<FinalCell> {
-    fn visit(
-        tree: &SamplingTree,
-        n: Vec3,
-        at: Cursor,
-        (p, settled_at): (f64, Option<([u32; 2], u32)>),
-        out: &mut Vec<FinalCell>,
-    ) {
-        let level = at.level(tree, n);
-        for q in 0..4 {
-            let (ix, iy) = (q & 1, q >> 1);
-            let pq = p * f64::from(level.density_factor(ix | iy << 1)) / 4.0;
-            if pq == 0.0 {
-                continue;
-            }
-            let mut next = at;
-            let goes_on = next.enter(tree, &level, ix, iy);
-            let settled_at = settled_at.or(next.settled.then_some((next.cell, next.depth)));
-            if goes_on {
-                visit(tree, n, next, (pq, settled_at), out);
-            } else {
-                out.push(FinalCell {
-                    cell: next.cell,
-                    depth: next.depth,
-                    p: pq,
-                    settled_at,
-                });
-            }
-        }
-    }
-    let mut out = Vec::new();
-    visit(tree, n, Cursor::ROOT, (1.0, None), &mut out);
-    out
-}
-
 #[test]
 fn below_a_settled_cell_the_product_follows_the_guide() {
     let mut next = uniform(21);
@@ -176,7 +123,7 @@ fn below_a_settled_cell_the_product_follows_the_guide() {
         for n in normals(&mut next) {
             // Within a settled cell, the product's density is the guide's times one factor.
             let mut factor = std::collections::HashMap::new();
-            for c in final_cells(&tree, n) {
+            for c in final_cells(&tree, &ClampedCosine(n)) {
                 let Some(key) = c.settled_at else { continue };
                 let ratio =
                     f64::from(tree.pdf_surface(n, c.centre())) / f64::from(tree.pdf(c.centre()));
@@ -215,7 +162,7 @@ fn the_product_integrates_to_one_and_pdf_is_each_cells_probability() {
     for seed in 1..=3 {
         let tree = random_sampling_tree(seed);
         for n in normals(&mut next) {
-            let cells = final_cells(&tree, n);
+            let cells = final_cells(&tree, &ClampedCosine(n));
             let total: f64 = cells.iter().map(|c| c.p).sum();
             assert!((total - 1.0).abs() < 1e-5, "seed {seed}, n = {n}: {total}");
             // The density `pdf` finds at each cell's centre, times the cell's area, is the
@@ -236,43 +183,12 @@ fn the_product_integrates_to_one_and_pdf_is_each_cells_probability() {
     }
 }
 
-/// Chi-square test of `draw` (a sampler of the square) against the probabilities of the
-/// product's final cells of `tree` and `n`.
-fn assert_samples_the_product(tree: &SamplingTree, n: Vec3, mut draw: impl FnMut() -> Vec2) {
-    // Bins: the 32 × 32 grid; each final cell's probability goes to the bins it covers
-    // (in equal shares: the density is constant on it).
-    let (bins, draws) = (32u32, 1_000_000u64);
-    let mut expected = vec![0.0f64; (bins * bins) as usize];
-    for FinalCell { cell, depth, p, .. } in final_cells(tree, n) {
-        if depth >= 5 {
-            let shift = depth - 5;
-            expected[((cell[1] >> shift) * bins + (cell[0] >> shift)) as usize] += p;
-        } else {
-            let k = 1u32 << (5 - depth);
-            let share = p / f64::from(k * k);
-            for j in 0..k {
-                for i in 0..k {
-                    let (bx, by) = (cell[0] * k + i, cell[1] * k + j);
-                    expected[(by * bins + bx) as usize] += share;
-                }
-            }
-        }
-    }
-    let mut observed = vec![0u64; expected.len()];
-    for _ in 0..draws {
-        let s = draw();
-        let (i, j) = ((s.x * bins as f32) as u32, (s.y * bins as f32) as u32);
-        observed[(j * bins + i) as usize] += 1;
-    }
-    assert_chi_square(&observed, &expected, draws, 150, &format!("n = {n}"));
-}
-
 #[test]
 fn the_product_samples_its_cells_chi_square() {
     let mut next = uniform(17);
     let tree = random_sampling_tree(2);
     for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
-        assert_samples_the_product(&tree, n, || {
+        assert_samples_the_product(&tree, &ClampedCosine(n), &format!("n = {n}"), || {
             tree.sample_surface(n, Vec2::new(next() as f32, next() as f32))
                 .0
         });
@@ -285,7 +201,7 @@ fn the_stored_product_samples_the_products_cells_chi_square() {
     let tree = random_sampling_tree(2);
     for n in [Vec3::Z, Vec3::new(0.3, -0.8, 0.2).normalize()] {
         let stored = SurfaceTree::build(&tree, n).unwrap();
-        assert_samples_the_product(&tree, n, || {
+        assert_samples_the_product(&tree, &ClampedCosine(n), &format!("n = {n}"), || {
             stored.sample(Vec2::new(next() as f32, next() as f32)).0
         });
     }
@@ -310,7 +226,7 @@ fn the_stored_product_is_the_per_query_product() {
                 .flat_map(|node| node.child)
                 .filter(|&c| c == RESUME)
                 .count();
-            let cells = final_cells(&tree, n);
+            let cells = final_cells(&tree, &ClampedCosine(n));
             let total: f64 = cells
                 .iter()
                 .map(|c| {

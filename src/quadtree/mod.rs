@@ -27,6 +27,8 @@
 //! ([`fixed`]), so that every descent agrees on which cell holds a point.
 
 mod horizon;
+mod phase;
+mod product;
 mod recording;
 mod refine;
 mod sampling;
@@ -34,6 +36,7 @@ mod splat;
 mod surfaces;
 
 pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
+pub(crate) use phase::{MAX_G, PHASE_DEPTH, PhaseLobe};
 pub(crate) use recording::RecordingTree;
 pub(crate) use refine::{RefineParams, refine};
 pub(crate) use sampling::{GRID_BYTES, SamplingNode, SamplingTree};

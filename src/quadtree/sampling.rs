@@ -14,6 +14,7 @@
 use super::{DirectionalCell, FIXED_BITS, NO_CHILD, RESUME, fixed, quadrant_bits};
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use glam::{Vec2, Vec4};
+use std::sync::LazyLock;
 
 /// The depth of the cells [`Grid`] flattens the tree into: 16 × 16 of them. Each level deeper
 /// would take four times the memory (2.6 KB per tree at depth 4).
@@ -275,6 +276,12 @@ impl SamplingTree {
     /// The uniform density: one root with four equal leaves.
     pub(crate) fn uniform() -> Self {
         Self::new(Box::new([SamplingNode::UNIFORM]))
+    }
+
+    /// The uniform density, shared (what a field without volume guides gives medium queries).
+    pub(crate) fn uniform_ref() -> &'static Self {
+        static UNIFORM: LazyLock<SamplingTree> = LazyLock::new(SamplingTree::uniform);
+        &UNIFORM
     }
 
     /// The tree of `nodes` (children after their parents, the root first).

@@ -184,6 +184,15 @@ pub(crate) struct Surfaces {
     held: u8,
 }
 
+impl Surfaces {
+    /// A tally with nothing in it and no products, shared (what a guide of medium vertices
+    /// reads: they have no normal).
+    pub(crate) fn none() -> &'static Surfaces {
+        static NONE: std::sync::LazyLock<Surfaces> = std::sync::LazyLock::new(Surfaces::default);
+        &NONE
+    }
+}
+
 impl Clone for Surfaces {
     fn clone(&self) -> Self {
         let mut out = Surfaces {

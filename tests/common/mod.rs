@@ -55,3 +55,51 @@ pub fn held_out_points() -> [Vec3; 3] {
         Vec3::new(0.02, 0.8, 0.25),
     ]
 }
+
+/// The section table of a cache: (kind, flags, offset, length).
+pub fn sections(bytes: &[u8]) -> Vec<(u32, u32, u64, u64)> {
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap());
+    (0..u32_at(16) as usize)
+        .map(|k| {
+            let e = 32 + 24 * k;
+            (u32_at(e), u32_at(e + 4), u64_at(e + 8), u64_at(e + 16))
+        })
+        .collect()
+}
+
+/// Rebuilds a cache from a version and sections, with a correct length and checksum: how a
+/// newer writer, or a forger, would.
+pub fn assemble(version: (u16, u16), parts: &[(u32, u32, Vec<u8>)]) -> Vec<u8> {
+    let table_end = 32 + 24 * parts.len();
+    let total = table_end + parts.iter().map(|p| p.2.len()).sum::<usize>() + 4;
+    let mut out = sdguide::MAGIC.to_vec();
+    out.extend_from_slice(&version.0.to_le_bytes());
+    out.extend_from_slice(&version.1.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&(parts.len() as u32).to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&(total as u64).to_le_bytes());
+    let mut offset = table_end as u64;
+    for (kind, flags, body) in parts {
+        out.extend_from_slice(&kind.to_le_bytes());
+        out.extend_from_slice(&flags.to_le_bytes());
+        out.extend_from_slice(&offset.to_le_bytes());
+        out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        offset += body.len() as u64;
+    }
+    for (_, _, body) in parts {
+        out.extend_from_slice(body);
+    }
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+/// The sections of a real cache as (kind, flags, body).
+pub fn parts(bytes: &[u8]) -> Vec<(u32, u32, Vec<u8>)> {
+    sections(bytes)
+        .into_iter()
+        .map(|(k, f, o, l)| (k, f, bytes[o as usize..(o + l) as usize].to_vec()))
+        .collect()
+}

@@ -1,11 +1,12 @@
 //! A region: everything one spatial leaf knows and learns.
 //!
-//! A spatial leaf of the field is a [`Region`]. It holds the directional quadtree, double
-//! buffered (the [`SamplingTree`] queries descend, the [`RecordingTree`] render threads add to),
-//! the tally of recorded normals and the stored products with the cosine built from it, the
-//! learned guide-vs-BSDF probability with its sums, and the continuation sums of roulette and
-//! splitting. The field routes each sample, continuation and query to one region; the region
-//! does the rest, and so owns its three moments of an iteration:
+//! A spatial leaf of the field is a [`Region`]. It holds the directional quadtree of its
+//! surface vertices, double buffered (the [`SamplingTree`] queries descend, the
+//! [`RecordingTree`] render threads add to), the tally of recorded normals and the stored
+//! products with the cosine built from it, the learned guide-vs-BSDF probability with its
+//! sums, the continuation sums of roulette and splitting, and — in a field with volumes — the
+//! [`Guide`] of its medium vertices. The field routes each sample, continuation and query to one
+//! region; the region does the rest, and so owns its three moments of an iteration:
 //!
 //! - `record` (`&self`, lock-free): [`record_normal`](Region::record_normal),
 //!   [`record_selection`](Region::record_selection), [`record`](Region::record),
@@ -17,14 +18,18 @@
 //!
 //! The cache reads and writes a region through the accessors at the end of this file.
 
+mod guide;
+
+pub(crate) use guide::{Guide, GuideView, GuideViewMut};
+
 use crate::config::GuidingConfig;
 use crate::distribution::DirectionalDistribution;
 use crate::filter::DirectionalFilter;
 use crate::guide_probability::GuideSelection;
 use crate::moments::Moments;
 use crate::quadtree::{
-    self, DirectionalCell, GRID_BYTES, RecordingTree, RefineParams, SamplingTree, Surfaces,
-    Tallied, leaf_bytes,
+    DirectionalCell, GRID_BYTES, RecordingTree, RefineParams, SamplingTree, Surfaces, Tallied,
+    leaf_bytes,
 };
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
 use crate::stats::FieldStats;
@@ -84,14 +89,24 @@ pub(crate) struct Region {
     recording: RecordingTree,
     /// The learned guide-vs-BSDF selection probability.
     selection: GuideSelection,
-    /// The continuation moments, for roulette and splitting.
+    /// The continuation moments, for roulette and splitting (surface and medium vertices).
     continuations: ContinuationStats,
+    /// The guide of medium vertices, in a field with volumes.
+    volume: Option<Box<Guide>>,
 }
 
 impl Default for Region {
     fn default() -> Self {
         Self::new(SamplingTree::uniform(), RecordingTree::root())
     }
+}
+
+/// The parts of a region's guide for one kind of vertex that `record` touches.
+#[derive(Clone, Copy)]
+struct Parts<'a> {
+    sampling: &'a SamplingTree,
+    recording: &'a RecordingTree,
+    selection: &'a GuideSelection,
 }
 
 impl Region {
@@ -103,6 +118,36 @@ impl Region {
             recording,
             selection: GuideSelection::default(),
             continuations: ContinuationStats::default(),
+            volume: None,
+        }
+    }
+
+    /// The region with a guide for medium vertices (learned from nothing yet), or without.
+    pub(crate) fn with_volume(mut self, volume: Option<Guide>) -> Self {
+        self.volume = volume.map(Box::new);
+        self
+    }
+
+    /// The guide of medium vertices, if the region keeps one.
+    pub(crate) fn volume(&self) -> Option<&Guide> {
+        self.volume.as_deref()
+    }
+
+    /// The parts `record` touches of the guide of surface vertices, or of medium vertices
+    /// (`volume`; the surface guide's in a region without one, where the field never asks).
+    #[inline(always)]
+    fn parts(&self, volume: bool) -> Parts<'_> {
+        match self.volume.as_deref() {
+            Some(g) if volume => Parts {
+                sampling: &g.sampling,
+                recording: &g.recording,
+                selection: &g.selection,
+            },
+            _ => Parts {
+                sampling: &self.sampling,
+                recording: &self.recording,
+                selection: &self.selection,
+            },
         }
     }
 
@@ -117,15 +162,39 @@ impl Region {
         )
     }
 
+    /// The distribution queries at medium vertices in this region receive: the uniform
+    /// distribution with guide probability 0 (sample the phase function alone) in a region
+    /// without a volume guide.
+    #[inline]
+    pub(crate) fn volume_distribution(&self) -> DirectionalDistribution<'_> {
+        match self.volume.as_deref() {
+            Some(g) => DirectionalDistribution::new(
+                &g.sampling,
+                g.selection.probability,
+                &self.continuations.estimate,
+                Surfaces::none(),
+            ),
+            None => DirectionalDistribution::new(
+                SamplingTree::uniform_ref(),
+                0.0,
+                &self.continuations.estimate,
+                Surfaces::none(),
+            ),
+        }
+    }
+
     /// The continuation estimate, for roulette and splitting.
     #[inline]
     pub(crate) fn continuation(&self) -> ContinuationEstimate {
         self.continuations.estimate
     }
 
-    /// Gives the recording tree pending sums, for the deferred box filter.
+    /// Gives the recording trees pending sums, for the deferred box filter.
     pub(crate) fn defer(&mut self) {
         self.recording.defer();
+        if let Some(g) = self.volume.as_deref_mut() {
+            g.recording.defer();
+        }
     }
 
     // --- record (&self, any thread) ---
@@ -136,42 +205,50 @@ impl Region {
         self.surfaces.record(n, priority);
     }
 
-    /// Adds a sample's mixture terms to the guide-selection sums (`pdf`: the mixture's).
+    /// Adds a sample's mixture terms to the guide-selection sums (`pdf`: the mixture's) of the
+    /// surface guide or the medium one (`volume`).
     #[inline]
     /// Returns whether a term was clamped to the sums' range.
     pub(crate) fn record_selection(
         &self,
+        volume: bool,
         integrand: f32,
-        bsdf_pdf: f32,
+        technique_pdf: f32,
         guide_pdf: f32,
         pdf: f32,
     ) -> bool {
-        self.selection.record(integrand, bsdf_pdf, guide_pdf, pdf)
+        self.parts(volume)
+            .selection
+            .record(integrand, technique_pdf, guide_pdf, pdf)
     }
 
-    /// The density on the square the sampling tree gives `square`.
+    /// The density on the square the surface (or medium, `volume`) guide gives `square`.
     #[inline]
-    pub(crate) fn square_pdf(&self, square: Vec2) -> f32 {
-        self.sampling.pdf(square)
+    pub(crate) fn square_pdf(&self, volume: bool, square: Vec2) -> f32 {
+        self.parts(volume).sampling.pdf(square)
     }
 
-    /// Records weights `w` at `square` through the directional filter; `counted`: as the
-    /// sample's own record (see [`RecordingTree::record`]).
+    /// Records weights `w` at `square` through the directional filter into the surface (or
+    /// medium, `volume`) guide; `counted`: as the sample's own record (see
+    /// [`RecordingTree::record`]).
     #[inline]
     pub(crate) fn record(
         &self,
+        volume: bool,
         filter: DirectionalFilter,
         square: Vec2,
         w: (f64, f64),
         counted: bool,
     ) {
-        self.recording.record(filter, square, w, counted);
+        self.parts(volume)
+            .recording
+            .record(filter, square, w, counted);
     }
 
     /// Counts a sample whose weights the spatial box filter spreads over other regions.
     #[inline]
-    pub(crate) fn count_sample(&self, square: Vec2, w2: f64) {
-        self.recording.count_sample(square, w2);
+    pub(crate) fn count_sample(&self, volume: bool, square: Vec2, w2: f64) {
+        self.parts(volume).recording.count_sample(square, w2);
     }
 
     /// Adds one traced continuation's value and cost.
@@ -183,36 +260,29 @@ impl Region {
 
     // --- refine (&mut self) ---
 
-    /// Ends an iteration: one step of the guide probability (and whether the guide pays for
-    /// its cost), the continuation estimate, the next sampling and recording trees, and the
-    /// stored surface products for them. A region that counted no sample keeps its
-    /// distribution.
+    /// Ends an iteration: for the surface guide and the medium one, one step of the guide
+    /// probability (and whether the guide pays for its cost) and the next sampling and
+    /// recording trees; the continuation estimate; and the stored surface products for the new
+    /// surface guide. A guide that counted no sample keeps its distribution.
     pub(crate) fn refine(&mut self, params: &StepParams) -> RefineOutcome {
-        // Where the renderer recorded continuations (efficiency-aware roulette or splitting),
-        // the guide stays on: the factors follow continuation estimates the guide shapes, so
-        // what the guide is worth is not in its vertices' variance alone (see
-        // `guide_probability`).
         let splitting = self.continuations.recorded().count > 0;
-        let cost = params.guide_cost.filter(|_| !splitting);
-        self.selection.step(params.max_guide_probability, cost);
         self.continuations.step();
-        self.recording.flush_pending_mut();
-        let samples = self.recording.count();
-        if samples == 0 {
-            // Nothing landed here; shares a box filter spread in from neighbouring regions are
-            // not enough to learn from (shrinkage weighs by counted samples), so they are
-            // dropped with the iteration, and the distribution stays.
-            self.recording.clear_moments();
-            return RefineOutcome::default();
+        let (mut outcome, rebuilt) = guide::step(
+            &mut self.sampling,
+            &mut self.recording,
+            &mut self.selection,
+            params,
+            splitting,
+        );
+        if rebuilt {
+            self.surfaces.refine(&self.sampling);
         }
-        let next = quadtree::refine(&self.recording, &params.tree);
-        self.sampling = next.sampling;
-        self.recording = next.recording;
-        self.surfaces.refine(&self.sampling);
-        RefineOutcome {
-            samples,
-            refused: next.refused,
+        if let Some(g) = self.volume.as_deref_mut() {
+            let (v, _) = g.step(params, splitting);
+            outcome.samples = outcome.samples.saturating_add(v.samples);
+            outcome.refused += v.refused;
         }
+        outcome
     }
 
     /// Drops the stored surface products; returns the bytes freed.
@@ -225,14 +295,11 @@ impl Region {
     /// Whether `other` started the iteration from the same state, and if not, what differs.
     pub(crate) fn same_start(&self, other: &Region) -> Result<(), &'static str> {
         let (a, b) = (self, other);
-        if a.sampling != b.sampling {
-            return Err("distributions");
-        }
-        if a.recording.nodes != b.recording.nodes {
-            return Err("recording topologies");
-        }
-        if (a.selection.learned, a.selection.off()) != (b.selection.learned, b.selection.off()) {
-            return Err("guide probabilities");
+        guide::same_start(a, b)?;
+        match (a.volume(), b.volume()) {
+            (Some(va), Some(vb)) => guide::same_start(va, vb).map_err(|_| "volume guides")?,
+            (None, None) => {}
+            _ => return Err("volume guides"),
         }
         if a.continuations.estimate != b.continuations.estimate {
             return Err("continuation estimates");
@@ -247,10 +314,13 @@ impl Region {
 
     /// Adds what `other` recorded in the iteration (see [`same_start`](Self::same_start)):
     /// the directional moments and quadrant sums, the guide-selection and continuation sums,
-    /// the normal tally, and the sums the deferred filter holds back — all exactly.
+    /// the normal tally, and the sums the deferred filter holds back, of both guides — all
+    /// exactly.
     pub(crate) fn add(&mut self, other: &Region) {
-        self.recording.add(&other.recording);
-        self.selection.add_sums(other.selection.sums());
+        guide::add(&mut self.recording, &mut self.selection, other);
+        if let (Some(v), Some(w)) = (self.volume.as_deref_mut(), other.volume()) {
+            v.add(w);
+        }
         self.continuations
             .add_recorded(&other.continuations.recorded());
         self.surfaces.add_tally(&other.surfaces);
@@ -260,14 +330,16 @@ impl Region {
 
     /// Adds this region's sizes and counts to `s`.
     pub(crate) fn add_stats(&self, s: &mut FieldStats) {
-        let (leaves, depth) = self.sampling.leaf_count_and_depth();
-        s.directional_nodes += self.sampling.node_count() as u64;
-        s.directional_leaves += leaves as u64;
-        s.directional_depth = s.directional_depth.max(depth);
-        s.samples_recorded = s.samples_recorded.saturating_add(self.recording.count());
+        guide::add_stats(self, s);
+        if let Some(g) = self.volume() {
+            guide::add_stats(g, s);
+            s.volume_directional_nodes += g.sampling.node_count() as u64;
+            s.volume_samples_recorded = s
+                .volume_samples_recorded
+                .saturating_add(g.recording.count());
+        }
         s.surface_products += self.surfaces.products.len() as u64;
         s.surface_product_nodes += self.surfaces.node_count() as u64;
-        s.guides_off += u64::from(self.selection.off());
         s.continuations_recorded = s
             .continuations_recorded
             .saturating_add(self.continuations.recorded().count);
@@ -281,7 +353,14 @@ impl Region {
 
     /// The heap and inline bytes of the region.
     pub(crate) fn bytes(&self) -> usize {
-        self.sampling.bytes() + self.recording.bytes() + self.surfaces.bytes() + size_of::<Region>()
+        let volume = self.volume().map_or(0, |g| {
+            g.sampling.bytes() + g.recording.bytes() + size_of::<Guide>()
+        });
+        self.sampling.bytes()
+            + self.recording.bytes()
+            + self.surfaces.bytes()
+            + size_of::<Region>()
+            + volume
     }
 
     /// The bytes of the stored surface products.
@@ -296,27 +375,12 @@ impl Region {
         (size_of::<Region>() + GRID_BYTES) as u64 + leaf_bytes(deferred)
     }
 
-    // --- cache accessors ---
-
-    pub(crate) fn sampling(&self) -> &SamplingTree {
-        &self.sampling
+    /// [`fixed_bytes`](Self::fixed_bytes) of a region's medium guide.
+    pub(crate) const fn fixed_volume_bytes(deferred: bool) -> u64 {
+        (size_of::<Guide>() + GRID_BYTES) as u64 + leaf_bytes(deferred)
     }
 
-    pub(crate) fn recording(&self) -> &RecordingTree {
-        &self.recording
-    }
-
-    pub(crate) fn recording_mut(&mut self) -> &mut RecordingTree {
-        &mut self.recording
-    }
-
-    pub(crate) fn selection(&self) -> &GuideSelection {
-        &self.selection
-    }
-
-    pub(crate) fn set_selection(&mut self, selection: GuideSelection) {
-        self.selection = selection;
-    }
+    // --- cache accessors (the surface guide's through `GuideView`) ---
 
     pub(crate) fn continuations(&self) -> &ContinuationStats {
         &self.continuations
@@ -334,6 +398,27 @@ impl Region {
     /// stored products from the sampling tree.
     pub(crate) fn set_tally(&mut self, slots: impl IntoIterator<Item = Tallied>, others: u32) {
         self.surfaces.set(slots, others, &self.sampling);
+    }
+}
+
+impl GuideView for Region {
+    fn sampling(&self) -> &SamplingTree {
+        &self.sampling
+    }
+    fn recording(&self) -> &RecordingTree {
+        &self.recording
+    }
+    fn selection(&self) -> &GuideSelection {
+        &self.selection
+    }
+}
+
+impl GuideViewMut for Region {
+    fn recording_mut(&mut self) -> &mut RecordingTree {
+        &mut self.recording
+    }
+    fn set_selection(&mut self, selection: GuideSelection) {
+        self.selection = selection;
     }
 }
 
