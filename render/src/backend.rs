@@ -8,7 +8,7 @@
 //! ([`Backend::refine`]).
 
 use glam::{Vec2, Vec3};
-use sdguide::{ContinuationEstimate, GuidingField, Sample, SurfaceDistribution};
+use sdguide::{ContinuationEstimate, GuidingField, PhaseDistribution, Sample, SurfaceDistribution};
 
 /// A guiding library, as the demo's integrator and training schedule use it.
 pub trait Backend: Sync {
@@ -21,6 +21,17 @@ pub trait Backend: Sync {
     /// where there is none. `lookup` is a uniform random number for a backend whose spatial
     /// lookup is stochastic ([`draws_lookup`](Self::draws_lookup)).
     fn at(&self, position: Vec3, normal: Vec3, lookup: f32) -> Option<Self::Vertex<'_>>;
+
+    /// The distribution at a vertex inside a medium whose phase function has asymmetry `g`,
+    /// reached travelling along `travel`: the backend's volume guide (its product with the
+    /// phase function); `None` where there is none.
+    fn in_medium(
+        &self,
+        position: Vec3,
+        travel: Vec3,
+        g: f32,
+        lookup: f32,
+    ) -> Option<Self::Vertex<'_>>;
 
     /// Whether a vertex's lookup draws a random number.
     fn draws_lookup(&self) -> bool {
@@ -56,12 +67,30 @@ pub trait VertexGuide {
     }
 }
 
+/// sdguide's distribution at a vertex: at a surface, the product with its clamped cosine; in a
+/// medium, the volume guide's product with the phase function.
+#[derive(Clone, Copy, Debug)]
+pub enum FieldVertex<'a> {
+    /// At a surface.
+    Surface(SurfaceDistribution<'a>),
+    /// In a medium.
+    Medium(PhaseDistribution<'a>),
+}
+
 impl Backend for GuidingField {
-    type Vertex<'a> = SurfaceDistribution<'a>;
+    type Vertex<'a> = FieldVertex<'a>;
 
     fn at(&self, position: Vec3, normal: Vec3, _lookup: f32) -> Option<Self::Vertex<'_>> {
         // The product with the surface's clamped cosine: the BSDF is zero below it.
-        Some(self.distribution(position).at_surface(normal))
+        Some(FieldVertex::Surface(
+            self.distribution(position).at_surface(normal),
+        ))
+    }
+
+    fn in_medium(&self, position: Vec3, travel: Vec3, g: f32, _: f32) -> Option<FieldVertex<'_>> {
+        Some(FieldVertex::Medium(
+            self.volume_distribution(position).with_phase(travel, g),
+        ))
     }
 
     fn record(&self, sample: &Sample, _distance: f32) {
@@ -77,22 +106,34 @@ impl Backend for GuidingField {
     }
 }
 
-impl VertexGuide for SurfaceDistribution<'_> {
+impl VertexGuide for FieldVertex<'_> {
     fn sample(&self, u: Vec2) -> (Vec3, Option<f32>) {
-        let (direction, pdf) = SurfaceDistribution::sample(self, u);
+        let (direction, pdf) = match self {
+            FieldVertex::Surface(d) => d.sample(u),
+            FieldVertex::Medium(d) => d.sample(u),
+        };
         (direction, Some(pdf))
     }
 
     fn pdf(&self, direction: Vec3) -> f32 {
-        SurfaceDistribution::pdf(self, direction)
+        match self {
+            FieldVertex::Surface(d) => d.pdf(direction),
+            FieldVertex::Medium(d) => d.pdf(direction),
+        }
     }
 
     fn guide_probability(&self) -> f32 {
-        SurfaceDistribution::guide_probability(self)
+        match self {
+            FieldVertex::Surface(d) => d.guide_probability(),
+            FieldVertex::Medium(d) => d.guide_probability(),
+        }
     }
 
     fn continuation(&self) -> Option<ContinuationEstimate> {
-        Some(SurfaceDistribution::continuation(self))
+        Some(match self {
+            FieldVertex::Surface(d) => d.continuation(),
+            FieldVertex::Medium(d) => d.continuation(),
+        })
     }
 }
 
@@ -108,6 +149,10 @@ impl Backend for Unguided {
     type Vertex<'a> = NoGuide;
 
     fn at(&self, _: Vec3, _: Vec3, _: f32) -> Option<NoGuide> {
+        None
+    }
+
+    fn in_medium(&self, _: Vec3, _: Vec3, _: f32, _: f32) -> Option<NoGuide> {
         None
     }
 

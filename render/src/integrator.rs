@@ -47,7 +47,8 @@ use crate::scene::Scene;
 use glam::Vec3;
 use sdguide::{GuidingField, PathRecorder, PathVertex, Splitting, VertexId, continuations};
 
-/// Longest path, in scattering events.
+/// Longest path, in scattering events, unless the scene sets its own
+/// ([`Scene::max_depth`](crate::scene::Scene::max_depth)).
 pub const MAX_DEPTH: usize = 10;
 /// Russian roulette starts after this many scattering events.
 const ROULETTE_DEPTH: usize = 3;
@@ -196,6 +197,39 @@ pub fn path_sample<B: Backend>(
     PathSample { radiance, rays }
 }
 
+/// Where a path scatters: a surface hit, or a point inside a medium.
+struct At {
+    position: Vec3,
+    /// The surface's geometric normal, which rays leave offset along; `None` in a medium.
+    normal: Option<Vec3>,
+}
+
+impl At {
+    /// The ray leaving the vertex along `direction`.
+    fn leaving(&self, direction: Vec3) -> Ray {
+        match self.normal {
+            Some(n) => Ray::leaving(self.position, n, direction, f32::INFINITY),
+            None => Ray {
+                origin: self.position,
+                direction,
+                t_max: f32::INFINITY,
+            },
+        }
+    }
+
+    /// The shadow ray toward a point `distance` away along `direction`.
+    fn shadow(&self, direction: Vec3, distance: f32) -> Ray {
+        match self.normal {
+            Some(n) => Ray::shadow(self.position, n, direction, distance),
+            None => Ray {
+                origin: self.position,
+                direction,
+                t_max: distance * (1.0 - 1e-4),
+            },
+        }
+    }
+}
+
 /// One camera sample's tree of continuations, traced depth first.
 struct Path<'s, 'a, B: Backend> {
     scene: &'s Scene,
@@ -225,11 +259,39 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
         owner: VertexId,
     ) -> f32 {
         let scene = self.scene;
-        let guide = self.guiding.map(|g| g.field);
         let mut first_hit = None;
         loop {
             self.ray(owner);
-            let Some(hit) = scene.intersect(&ray) else {
+            let hit = scene.intersect(&ray);
+            // In a medium, a free flight may end before the surface (a scene without media
+            // draws no number for it, so its paths stay what they were).
+            let scatter = (!scene.media.is_empty())
+                .then(|| {
+                    let t_max = hit.as_ref().map_or(f32::INFINITY, |h| h.t);
+                    scene.media.sample_scatter(&ray, t_max, self.rng.next_f32())
+                })
+                .flatten();
+            if let Some(scatter) = scatter {
+                let distance = *first_hit.get_or_insert(scatter.t);
+                if depth == scene.max_depth {
+                    return distance;
+                }
+                let (guide, lookup) = self.guide_lookup();
+                let at = At {
+                    position: ray.at(scatter.t),
+                    normal: None,
+                };
+                let sampler = VertexSampler::in_medium(
+                    at.position,
+                    ray.direction,
+                    &scatter.medium,
+                    guide,
+                    lookup,
+                );
+                self.scatter(&at, self.tune(sampler), depth, beta, owner);
+                return distance;
+            }
+            let Some(hit) = hit else {
                 return first_hit.unwrap_or(f32::INFINITY);
             };
             let distance = *first_hit.get_or_insert(hit.t);
@@ -244,7 +306,7 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                 };
                 self.scratch.path.add_radiance(owner, emitted * weight);
             }
-            if depth == MAX_DEPTH {
+            if depth == scene.max_depth {
                 return distance;
             }
             let material = scene.material(&hit);
@@ -270,91 +332,117 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                 depth += 1;
                 continue;
             }
-            let lookup = match guide {
-                Some(g) if g.draws_lookup() => self.rng.next_f32(),
-                _ => 0.0,
-            };
-            let fixed = self.guiding.and_then(|g| g.guide_probability);
-            // A guide that is never drawn is not looked up (the field then only learns).
-            let guide = guide.filter(|_| fixed != Some(0.0));
-            let mut sampler =
+            let (guide, lookup) = self.guide_lookup();
+            let sampler =
                 VertexSampler::with_guide(hit.position, normal, wo, material, guide, lookup);
-            if let Some(a) = fixed {
-                sampler = sampler.with_guide_probability(a);
-            }
-            if !self.guiding.is_some_and(|g| g.record) {
-                sampler = sampler.without_idle_guide();
-            }
-
-            // Next-event estimation, weighed against the mixture that would also find the
-            // light.
-            let (pick, u) = (self.rng.next_f32(), self.rng.next_vec2());
-            let light = scene
-                .next_event
-                .then(|| scene.sample_light(hit.position, pick, u))
-                .flatten();
-            if let Some(light) = light {
-                let f = sampler.bsdf_cos(light.direction);
-                if f != Vec3::ZERO {
-                    let shadow =
-                        Ray::shadow(hit.position, hit.normal, light.direction, light.distance);
-                    self.ray(owner);
-                    if !scene.occluded(&shadow) {
-                        let weight =
-                            power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
-                        let l = f * light.radiance * (weight / light.pdf);
-                        self.scratch.path.add_radiance(owner, l);
-                    }
-                }
-            }
-
-            // How many continuations, each weighed by 1/q: the efficiency-aware factor where
-            // the cell has an estimate, else one, under classic roulette.
-            let policy = self.policy.zip(self.continuations.map(|c| c.field));
-            let factor = policy.and_then(|((splitting, pixel), field)| {
-                // The guide's view of the same field already holds its cell's estimate: no
-                // second lookup.
-                let same = guide
-                    .and_then(Backend::as_field)
-                    .is_some_and(|f| std::ptr::eq(f, field));
-                let estimate = sampler
-                    .guide
-                    .as_ref()
-                    .filter(|_| same)
-                    .and_then(VertexGuide::continuation)
-                    .unwrap_or_else(|| field.continuation(hit.position));
-                let path = &mut self.scratch.path;
-                let q = path.factor(&splitting, &estimate, luminance(beta), pixel)?;
-                // The camera vertex only plays roulette: there the rest of the image, which the
-                // factor takes to be the whole image, is mostly this vertex's own continuations,
-                // so every factor is its own fixed point and estimation noise alone sets it
-                // (measured on `door`: 90% of camera vertices at the largest factor). Its split
-                // would save only the camera ray.
-                Some(if depth == 0 || self.rays >= MAX_RAYS_PER_SAMPLE {
-                    q.min(1.0)
-                } else {
-                    q
-                })
-            });
-            let (n, weight) = match factor {
-                Some(q) => {
-                    let (n, weight) = continuations(q, self.rng.next_f32());
-                    self.scratch.path.split(owner, q, n);
-                    (n, weight)
-                }
-                None => (1, 1.0),
+            let at = At {
+                position: hit.position,
+                normal: Some(hit.normal),
             };
-            for _ in 0..n {
-                self.continue_from(
-                    &hit,
-                    &sampler,
-                    depth,
-                    beta * weight,
-                    factor.is_none(),
-                    owner,
-                );
-            }
+            self.scatter(&at, self.tune(sampler), depth, beta, owner);
             return distance;
+        }
+    }
+
+    /// The guide to look up at a vertex (none where it is never drawn: the field then only
+    /// learns), and the random number a stochastic lookup draws.
+    fn guide_lookup(&mut self) -> (Option<&'a B>, f32) {
+        let guide = self.guiding.map(|g| g.field);
+        let lookup = match guide {
+            Some(g) if g.draws_lookup() => self.rng.next_f32(),
+            _ => 0.0,
+        };
+        let fixed = self.guiding.and_then(|g| g.guide_probability);
+        (guide.filter(|_| fixed != Some(0.0)), lookup)
+    }
+
+    /// A vertex's sampler with the render's fixed guide probability, if any, and without an
+    /// idle guide outside training passes.
+    fn tune<'v>(&self, mut sampler: VertexSampler<'v, B>) -> VertexSampler<'v, B> {
+        if let Some(a) = self.guiding.and_then(|g| g.guide_probability) {
+            sampler = sampler.with_guide_probability(a);
+        }
+        if !self.guiding.is_some_and(|g| g.record) {
+            sampler = sampler.without_idle_guide();
+        }
+        sampler
+    }
+
+    /// Scattering at the vertex `at` that the ray of `owner` reached, with `sampler`:
+    /// next-event estimation, the continuations' factor, and the continuations.
+    fn scatter(
+        &mut self,
+        at: &At,
+        sampler: VertexSampler<'_, B>,
+        depth: usize,
+        beta: Vec3,
+        owner: VertexId,
+    ) {
+        let scene = self.scene;
+        // Next-event estimation, weighed against the mixture that would also find the light,
+        // and attenuated by the media the shadow ray crosses.
+        let (pick, u) = (self.rng.next_f32(), self.rng.next_vec2());
+        let light = scene
+            .next_event
+            .then(|| scene.sample_light(at.position, pick, u))
+            .flatten();
+        if let Some(light) = light {
+            let f = sampler.bsdf_cos(light.direction);
+            if f != Vec3::ZERO {
+                let shadow = at.shadow(light.direction, light.distance);
+                self.ray(owner);
+                if !scene.occluded(&shadow) {
+                    let weight = power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
+                    let transmittance = if scene.media.is_empty() {
+                        1.0
+                    } else {
+                        scene.media.transmittance(&shadow, shadow.t_max)
+                    };
+                    let l = f * light.radiance * (transmittance * weight / light.pdf);
+                    self.scratch.path.add_radiance(owner, l);
+                }
+            }
+        }
+
+        // How many continuations, each weighed by 1/q: the efficiency-aware factor where the
+        // cell has an estimate, else one, under classic roulette.
+        let guide = self.guiding.map(|g| g.field);
+        let policy = self.policy.zip(self.continuations.map(|c| c.field));
+        let factor = policy.and_then(|((splitting, pixel), field)| {
+            // The guide's view of the same field already holds its cell's estimate: no second
+            // lookup.
+            let same = guide
+                .and_then(Backend::as_field)
+                .is_some_and(|f| std::ptr::eq(f, field));
+            let estimate = sampler
+                .guide
+                .as_ref()
+                .filter(|_| same)
+                .and_then(VertexGuide::continuation)
+                .unwrap_or_else(|| field.continuation(at.position));
+            let path = &mut self.scratch.path;
+            let q = path.factor(&splitting, &estimate, luminance(beta), pixel)?;
+            // The camera vertex only plays roulette: there the rest of the image, which the
+            // factor takes to be the whole image, is mostly this vertex's own continuations, so
+            // every factor is its own fixed point and estimation noise alone sets it (measured
+            // on `door`: 90% of camera vertices at the largest factor). Its split would save
+            // only the camera ray.
+            Some(if depth == 0 || self.rays >= MAX_RAYS_PER_SAMPLE {
+                q.min(1.0)
+            } else {
+                q
+            })
+        });
+        let (n, weight) = match factor {
+            Some(q) => {
+                let (n, weight) = continuations(q, self.rng.next_f32());
+                self.scratch.path.split(owner, q, n);
+                (n, weight)
+            }
+            None => (1, 1.0),
+        };
+        for _ in 0..n {
+            self.continue_from(at, &sampler, depth, beta * weight, factor.is_none(), owner);
         }
     }
 
@@ -369,7 +457,7 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
     /// splitting policy decides), the path then meets the path's [`Roulette`].
     fn continue_from(
         &mut self,
-        hit: &crate::scene::Hit,
+        at: &At,
         sampler: &VertexSampler<'_, B>,
         depth: usize,
         beta: Vec3,
@@ -381,11 +469,14 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
         };
         let f = sampler.bsdf_cos(s.direction);
         let beta = beta * (f / s.pdf.mixture);
-        // GUIDING (3): push the vertex — its position and normal, the direction, `f·cos`, the
-        // mixture pdf and the two techniques' pdfs.
-        let vertex = PathVertex::new(hit.position, s.direction, f, s.pdf.mixture)
-            .with_normal(sampler.frame.normal())
+        // GUIDING (3): push the vertex — its position and normal (or that it lies in a
+        // medium), the direction, `f·cos`, the mixture pdf and the two techniques' pdfs.
+        let vertex = PathVertex::new(at.position, s.direction, f, s.pdf.mixture)
             .with_mixture(s.pdf.bsdf, s.pdf.guide);
+        let vertex = match sampler.normal() {
+            Some(n) => vertex.with_normal(n),
+            None => vertex.in_volume(),
+        };
         let v = self.scratch.path.push(owner, vertex);
         // Classic roulette decides after the direction is drawn, so a vertex it ends still
         // records its direction (with zero radiance): the recorded radiance, 1/survive times
@@ -409,12 +500,11 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             return;
         }
         self.scratch.path.roulette(v, survive, true);
-        let ray = Ray::leaving(hit.position, hit.normal, s.direction, f32::INFINITY);
         let distance = self.trace(
-            ray,
+            at.leaving(s.direction),
             depth + 1,
             beta / survive,
-            Some((hit.position, s.pdf.mixture)),
+            Some((at.position, s.pdf.mixture)),
             v,
         );
         let distances = &mut self.scratch.distances;

@@ -21,6 +21,7 @@ pub mod geometry;
 pub mod image;
 pub mod integrator;
 pub mod material;
+pub mod medium;
 pub mod method;
 #[cfg(feature = "openpgl")]
 pub mod openpgl;

@@ -209,8 +209,11 @@ pub fn render(
         mode: rrs.mode(),
         roulette: rrs.roulette(),
     };
+    // A scene with media guides its medium vertices with volume guides.
     let new_field = |config: GuidingConfig| {
-        GuidingField::new(field_bounds(scene), config).map_err(|e| e.to_string())
+        let volumes = config.volumes || !scene.media.is_empty();
+        GuidingField::new(field_bounds(scene), GuidingConfig { volumes, ..config })
+            .map_err(|e| e.to_string())
     };
     let (rendered, field) = match method {
         Method::Unguided if schedule.mode.is_none() => (

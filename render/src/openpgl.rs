@@ -87,6 +87,8 @@ mod ffi {
     pub const DEVICE_TYPE_CPU_8: i32 = 1;
     /// `PGL_TREE_MAX_SAMPLE_PER_LEAF`, the library's default.
     pub const TREE_MAX_SAMPLE_PER_LEAF: usize = 32000;
+    /// `PGLSampleData::flags`: the sample lies inside a participating medium.
+    pub const SAMPLE_INSIDE_VOLUME: u32 = 1;
 
     unsafe extern "C" {
         pub fn pglNewDevice(device_type: i32, num_threads: usize) -> *mut c_void;
@@ -122,6 +124,28 @@ mod ffi {
             distribution: *mut c_void,
             sample: Vec2f,
         ) -> Vec3f;
+        pub fn pglFieldNewVolumeSamplingDistribution(field: *mut c_void) -> *mut c_void;
+        pub fn pglFieldInitVolumeSamplingDistribution(
+            field: *mut c_void,
+            distribution: *mut c_void,
+            position: Vec3f,
+            sample1d: *mut f32,
+        ) -> bool;
+        pub fn pglReleaseVolumeSamplingDistribution(distribution: *mut c_void);
+        pub fn pglVolumeSamplingDistributionApplySingleLobeHenyeyGreensteinProduct(
+            distribution: *mut c_void,
+            direction: Vec3f,
+            mean_cosine: f32,
+        );
+        pub fn pglVolumeSamplingDistributionSupportsApplySingleLobeHenyeyGreensteinProduct(
+            distribution: *mut c_void,
+        ) -> bool;
+        pub fn pglVolumeSamplingDistributionSample(
+            distribution: *mut c_void,
+            sample: Vec2f,
+        ) -> Vec3f;
+        pub fn pglVolumeSamplingDistributionPDF(distribution: *mut c_void, direction: Vec3f)
+        -> f32;
         pub fn pglSurfaceSamplingDistributionPDF(
             distribution: *mut c_void,
             direction: Vec3f,
@@ -165,6 +189,8 @@ pub struct Record {
     pub pdf: f32,
     /// Distance to the next vertex along `direction`.
     pub distance: f32,
+    /// Whether the vertex lies inside a medium (it trains Open PGL's volume field).
+    pub volume: bool,
 }
 
 /// Distinguishes fields in the thread-local pool of distributions.
@@ -286,14 +312,18 @@ impl Guide {
                     weight: v.radiance / v.pdf,
                     pdf: v.pdf,
                     distance: v.distance,
-                    flags: 0,
+                    flags: if v.volume {
+                        ffi::SAMPLE_INSIDE_VOLUME
+                    } else {
+                        0
+                    },
                 };
                 n += 1;
             } else if v.radiance == 0.0 {
                 zeros[z] = ffi::ZeroValueSampleData {
                     position: vec3f(v.position),
                     direction: vec3f(v.direction),
-                    volume: false,
+                    volume: v.volume,
                 };
                 z += 1;
             }
@@ -325,44 +355,10 @@ impl Guide {
     /// stochastic spatial lookup draws with. `None` where the field has no distribution yet
     /// (before the first update): the vertex then samples its BSDF alone.
     pub fn distribution(&self, position: Vec3, normal: Vec3, lookup: f32) -> Option<Distribution> {
-        let raw = POOL.with(|pool| {
-            let mut pool = pool.borrow_mut();
-            // Distributions of a field that is gone are released when the next one is asked.
-            pool.retain(|d| d.field_id == self.id);
-            pool.pop()
-        });
-        let raw = match raw {
-            Some(raw) => raw,
-            None => {
-                // SAFETY: `&self` keeps the field alive; the result is checked.
-                let ptr = unsafe { ffi::pglFieldNewSurfaceSamplingDistribution(self.field) };
-                if ptr.is_null() {
-                    return None;
-                }
-                RawDistribution {
-                    ptr,
-                    field_id: self.id,
-                }
-            }
-        };
-        let mut sample1d = lookup.clamp(0.0, 1.0 - f32::EPSILON);
-        // SAFETY: the distribution was made by this field (the pool is keyed by field), and
-        // `&self` keeps the field unchanged while it is initialised and used.
-        let ok = unsafe {
-            ffi::pglFieldInitSurfaceSamplingDistribution(
-                self.field,
-                raw.ptr,
-                vec3f(position),
-                &mut sample1d,
-            )
-        };
-        let distribution = Distribution { raw: Some(raw) };
-        if !ok {
-            return None;
-        }
+        let distribution = self.initialised(Kind::Surface, position, lookup)?;
         if self.cosine_product && normal.is_finite() && normal != Vec3::ZERO {
             let ptr = distribution.ptr();
-            // SAFETY: an initialised distribution of this thread.
+            // SAFETY: an initialised surface distribution of this thread.
             unsafe {
                 if ffi::pglSurfaceSamplingDistributionSupportsApplyCosineProduct(ptr) {
                     ffi::pglSurfaceSamplingDistributionApplyCosineProduct(
@@ -373,6 +369,90 @@ impl Guide {
             }
         }
         Some(distribution)
+    }
+
+    /// The volume field's distribution at `position` inside a medium, as its product with the
+    /// Henyey–Greenstein phase function of mean cosine `g` about `travel`, the direction the
+    /// path arrived along (Open PGL's `ApplySingleLobeHenyeyGreensteinProduct`, as Cycles
+    /// calls it with the ray's direction). `None` where the field has no distribution yet.
+    pub fn volume_distribution(
+        &self,
+        position: Vec3,
+        travel: Vec3,
+        g: f32,
+        lookup: f32,
+    ) -> Option<Distribution> {
+        let distribution = self.initialised(Kind::Volume, position, lookup)?;
+        if travel.is_finite() && travel != Vec3::ZERO && g.is_finite() {
+            let ptr = distribution.ptr();
+            // SAFETY: an initialised volume distribution of this thread.
+            unsafe {
+                if ffi::pglVolumeSamplingDistributionSupportsApplySingleLobeHenyeyGreensteinProduct(
+                    ptr,
+                ) {
+                    ffi::pglVolumeSamplingDistributionApplySingleLobeHenyeyGreensteinProduct(
+                        ptr,
+                        vec3f(travel.normalize()),
+                        g,
+                    );
+                }
+            }
+        }
+        Some(distribution)
+    }
+
+    /// A distribution object of `kind` from the thread's pool (or a new one), initialised at
+    /// `position`.
+    fn initialised(&self, kind: Kind, position: Vec3, lookup: f32) -> Option<Distribution> {
+        let raw = POOL.with(|pool| {
+            let mut pool = pool.borrow_mut();
+            // Distributions of a field that is gone are released when the next one is asked.
+            pool.retain(|d| d.field_id == self.id);
+            let i = pool.iter().rposition(|d| d.kind == kind)?;
+            Some(pool.swap_remove(i))
+        });
+        let raw = match raw {
+            Some(raw) => raw,
+            None => {
+                // SAFETY: `&self` keeps the field alive; the result is checked.
+                let ptr = unsafe {
+                    match kind {
+                        Kind::Surface => ffi::pglFieldNewSurfaceSamplingDistribution(self.field),
+                        Kind::Volume => ffi::pglFieldNewVolumeSamplingDistribution(self.field),
+                    }
+                };
+                if ptr.is_null() {
+                    return None;
+                }
+                RawDistribution {
+                    ptr,
+                    field_id: self.id,
+                    kind,
+                }
+            }
+        };
+        let mut sample1d = lookup.clamp(0.0, 1.0 - f32::EPSILON);
+        // SAFETY: the distribution was made by this field (the pool is keyed by field) for
+        // this kind, and `&self` keeps the field unchanged while it is initialised and used.
+        let ok = unsafe {
+            let at = vec3f(position);
+            match kind {
+                Kind::Surface => ffi::pglFieldInitSurfaceSamplingDistribution(
+                    self.field,
+                    raw.ptr,
+                    at,
+                    &mut sample1d,
+                ),
+                Kind::Volume => ffi::pglFieldInitVolumeSamplingDistribution(
+                    self.field,
+                    raw.ptr,
+                    at,
+                    &mut sample1d,
+                ),
+            }
+        };
+        let distribution = Distribution { raw: Some(raw) };
+        ok.then_some(distribution)
     }
 }
 
@@ -399,17 +479,30 @@ fn avx2() -> bool {
     }
 }
 
+/// Which of Open PGL's distribution objects: a surface's or a volume's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Surface,
+    Volume,
+}
+
 /// A sampling distribution object, owned by one thread.
 struct RawDistribution {
     ptr: *mut c_void,
     field_id: u64,
+    kind: Kind,
 }
 
 impl Drop for RawDistribution {
     fn drop(&mut self) {
-        // SAFETY: created by `pglFieldNewSurfaceSamplingDistribution`, released once here; it
-        // owns its data and does not reach back into the field.
-        unsafe { ffi::pglReleaseSurfaceSamplingDistribution(self.ptr) }
+        // SAFETY: created by `pglFieldNew{Surface,Volume}SamplingDistribution` as `kind` says,
+        // released once here; it owns its data and does not reach back into the field.
+        unsafe {
+            match self.kind {
+                Kind::Surface => ffi::pglReleaseSurfaceSamplingDistribution(self.ptr),
+                Kind::Volume => ffi::pglReleaseVolumeSamplingDistribution(self.ptr),
+            }
+        }
     }
 }
 
@@ -429,20 +522,34 @@ impl Distribution {
         self.raw.as_ref().map_or(std::ptr::null_mut(), |r| r.ptr)
     }
 
+    fn kind(&self) -> Kind {
+        self.raw.as_ref().map_or(Kind::Surface, |r| r.kind)
+    }
+
     /// Draws a world-space unit direction from two uniform numbers.
     pub fn sample(&self, u: Vec2) -> Vec3 {
-        // SAFETY: an initialised distribution, used by the thread that initialised it (the
-        // type is neither `Send` nor `Sync`).
+        let u = ffi::Vec2f { x: u.x, y: u.y };
+        // SAFETY: an initialised distribution of its kind, used by the thread that initialised
+        // it (the type is neither `Send` nor `Sync`).
         let d = unsafe {
-            ffi::pglSurfaceSamplingDistributionSample(self.ptr(), ffi::Vec2f { x: u.x, y: u.y })
+            match self.kind() {
+                Kind::Surface => ffi::pglSurfaceSamplingDistributionSample(self.ptr(), u),
+                Kind::Volume => ffi::pglVolumeSamplingDistributionSample(self.ptr(), u),
+            }
         };
         Vec3::new(d.x, d.y, d.z)
     }
 
     /// The density of `direction` (solid angle), as `sample` draws it.
     pub fn pdf(&self, direction: Vec3) -> f32 {
+        let d = vec3f(direction);
         // SAFETY: as in `sample`.
-        unsafe { ffi::pglSurfaceSamplingDistributionPDF(self.ptr(), vec3f(direction)) }
+        unsafe {
+            match self.kind() {
+                Kind::Surface => ffi::pglSurfaceSamplingDistributionPDF(self.ptr(), d),
+                Kind::Volume => ffi::pglVolumeSamplingDistributionPDF(self.ptr(), d),
+            }
+        }
     }
 }
 
@@ -455,8 +562,8 @@ impl Drop for Distribution {
     }
 }
 
-/// The probability of sampling Open PGL's guide instead of the BSDF: ½, Cycles' default
-/// surface guiding probability (the peer learns none).
+/// The probability of sampling Open PGL's guide instead of the BSDF (or the phase function): ½,
+/// Cycles' default surface and volume guiding probabilities (the peer learns none).
 pub const PEER_GUIDE_PROBABILITY: f32 = 0.5;
 
 impl Backend for Guide {
@@ -464,6 +571,10 @@ impl Backend for Guide {
 
     fn at(&self, position: Vec3, normal: Vec3, lookup: f32) -> Option<Distribution> {
         self.distribution(position, normal, lookup)
+    }
+
+    fn in_medium(&self, position: Vec3, travel: Vec3, g: f32, lookup: f32) -> Option<Distribution> {
+        self.volume_distribution(position, travel, g, lookup)
     }
 
     fn draws_lookup(&self) -> bool {
@@ -479,6 +590,7 @@ impl Backend for Guide {
                 radiance: sample.value,
                 pdf: sample.pdf,
                 distance,
+                volume: sample.volume,
             }],
         );
     }
@@ -513,6 +625,7 @@ mod tests {
             radiance,
             pdf,
             distance,
+            volume: false,
         }
     }
 
@@ -552,6 +665,7 @@ mod tests {
                 radiance: 1.0,
                 pdf: 1.0,
                 distance: 1.0,
+                volume: false,
             });
         }
         for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
@@ -578,5 +692,45 @@ mod tests {
         assert!((integral - 1.0).abs() < 0.02, "integral {integral}");
         // The learned distribution favours the light's direction.
         assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z));
+    }
+
+    #[test]
+    fn volume_samples_train_the_volume_field_and_its_phase_product() {
+        let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let mut guide = Guide::new(bounds, true, 2).unwrap();
+        let mut records = Vec::new();
+        for i in 0..20_000u32 {
+            // Inside a medium, light from around −x.
+            let t = i as f32 / 20_000.0;
+            let position = Vec3::new(t, (t * 7.0).fract(), (t * 13.0).fract());
+            let phi = t * 97.0;
+            let direction = Vec3::new(-1.0, 0.3 * phi.cos(), 0.3 * phi.sin()).normalize();
+            records.push(Record {
+                position,
+                direction,
+                radiance: 1.0,
+                pdf: 1.0,
+                distance: 1.0,
+                volume: true,
+            });
+        }
+        for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+            guide.record(chunk);
+        }
+        guide.update();
+        let x = Vec3::splat(0.5);
+        let volume = guide.volume_distribution(x, Vec3::Y, 0.0, 0.5).unwrap();
+        assert!(volume.pdf(-Vec3::X) > 10.0 * volume.pdf(Vec3::X));
+        // With a forward-scattering phase function along +y, the product leans toward it.
+        let product = guide.volume_distribution(x, Vec3::Y, 0.8, 0.5).unwrap();
+        let lean = Vec3::new(-1.0, 1.0, 0.0).normalize();
+        assert!(
+            product.pdf(lean) / product.pdf(-Vec3::X) > volume.pdf(lean) / volume.pdf(-Vec3::X)
+        );
+        for k in 0..32 {
+            let u = Vec2::new((k as f32 + 0.5) / 32.0, 0.37);
+            let d = product.sample(u);
+            assert!(product.pdf(d) > 0.0);
+        }
     }
 }

@@ -1,12 +1,15 @@
-//! The directional sampling strategy at one path vertex: the BSDF's, mixed with a guide's.
+//! The directional sampling strategy at one path vertex: the BSDF's (at a surface) or the phase
+//! function's (in a medium), mixed with a guide's.
 //!
 //! With a guide, a direction is drawn from the **one-sample mixture**
-//! `q = a·p_guide + (1 − a)·p_bsdf`, `a` the guide probability; MIS and the estimator use the
-//! mixture's pdf `q`, for the direction sampled and for every next-event direction.
+//! `q = a·p_guide + (1 − a)·p_bsdf`, `a` the guide probability and `p_bsdf` the BSDF's or the
+//! phase function's pdf; MIS and the estimator use the mixture's pdf `q`, for the direction
+//! sampled and for every next-event direction.
 
 use crate::backend::{Backend, VertexGuide};
 use crate::geometry::Frame;
 use crate::material::Material;
+use crate::medium::{Medium, henyey_greenstein, sample_henyey_greenstein};
 use crate::rng::Rng;
 use glam::Vec3;
 use sdguide::GuidingField;
@@ -25,18 +28,27 @@ pub struct DirectionSample {
 pub struct MixturePdf {
     /// `q = a·guide + (1 − a)·bsdf`: what the direction was drawn with.
     pub mixture: f32,
-    /// The BSDF sampling pdf.
+    /// The BSDF's (or phase function's) sampling pdf.
     pub bsdf: f32,
     /// The guiding distribution's pdf (0 without guiding).
     pub guide: f32,
 }
 
-/// The directional sampling strategy at one vertex: the BSDF's, mixed with the guide's when
-/// there is a guiding field.
+/// What scatters at a vertex.
+#[derive(Clone, Copy)]
+enum Scatterer<'a> {
+    /// A surface's BSDF, with the outgoing direction in the shading frame.
+    Surface { material: &'a Material, wo: Vec3 },
+    /// A medium's phase function about the direction the path arrived along, and its albedo
+    /// (the weight of a scattering event under free-flight sampling).
+    Medium { travel: Vec3, g: f32, albedo: f32 },
+}
+
+/// The directional sampling strategy at one vertex: the BSDF's (or phase function's), mixed
+/// with the guide's when there is a guiding field.
 pub struct VertexSampler<'a, B: Backend + 'a = GuidingField> {
     pub(crate) frame: Frame,
-    wo: Vec3,
-    material: &'a Material,
+    scatterer: Scatterer<'a>,
     pub(crate) guide: Option<B::Vertex<'a>>,
     /// Probability of drawing from the guide.
     a: f32,
@@ -73,10 +85,45 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
         VertexSampler {
             frame,
-            wo: frame.to_local(wo),
-            material,
+            scatterer: Scatterer::Surface {
+                material,
+                wo: frame.to_local(wo),
+            },
             guide,
             a,
+        }
+    }
+
+    /// The strategy at `position` inside `medium`, for a path that arrived travelling along
+    /// `travel` (unit): the phase function mixed with the backend's volume guide (its product
+    /// with the phase function, where the backend has one).
+    pub fn in_medium(
+        position: Vec3,
+        travel: Vec3,
+        medium: &Medium,
+        guide: Option<&'a B>,
+        lookup: f32,
+    ) -> Self {
+        // GUIDING (1), in a medium: the volume guide's product with the phase function.
+        let guide = guide.and_then(|g| g.in_medium(position, travel, medium.g, lookup));
+        let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
+        VertexSampler {
+            frame: Frame::new(travel),
+            scatterer: Scatterer::Medium {
+                travel,
+                g: medium.g,
+                albedo: medium.albedo,
+            },
+            guide,
+            a,
+        }
+    }
+
+    /// The shading normal, at a surface (`None` in a medium).
+    pub fn normal(&self) -> Option<Vec3> {
+        match self.scatterer {
+            Scatterer::Surface { .. } => Some(self.frame.normal()),
+            Scatterer::Medium { .. } => None,
         }
     }
 
@@ -94,10 +141,26 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         VertexSampler { guide, ..self }
     }
 
-    /// The BSDF `f(wo, wi)·|cos θ_i|` for a world direction.
+    /// The BSDF `f(wo, wi)·|cos θ_i|` for a world direction; in a medium, the phase function
+    /// times the albedo.
     pub fn bsdf_cos(&self, direction: Vec3) -> Vec3 {
-        let wi = self.frame.to_local(direction);
-        self.material.eval(self.wo, wi) * wi.z.abs()
+        match self.scatterer {
+            Scatterer::Surface { material, wo } => {
+                let wi = self.frame.to_local(direction);
+                material.eval(wo, wi) * wi.z.abs()
+            }
+            Scatterer::Medium { travel, g, albedo } => {
+                Vec3::splat(albedo * henyey_greenstein(travel.dot(direction), g))
+            }
+        }
+    }
+
+    /// The BSDF's (or phase function's) own sampling pdf of `direction`.
+    fn technique_pdf(&self, direction: Vec3) -> f32 {
+        match self.scatterer {
+            Scatterer::Surface { material, wo } => material.pdf(wo, self.frame.to_local(direction)),
+            Scatterer::Medium { travel, g, .. } => henyey_greenstein(travel.dot(direction), g),
+        }
     }
 
     /// The pdfs of drawing the world direction `direction`.
@@ -109,7 +172,7 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
 
     /// The pdfs of `direction`, whose guide pdf is `guide`.
     fn mixture_pdf(&self, direction: Vec3, guide: f32) -> MixturePdf {
-        let bsdf = self.material.pdf(self.wo, self.frame.to_local(direction));
+        let bsdf = self.technique_pdf(direction);
         MixturePdf {
             mixture: self.a * guide + (1.0 - self.a) * bsdf,
             bsdf,
@@ -117,18 +180,23 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         }
     }
 
-    /// Draws a direction: from the guide with probability `a`, else from the BSDF. `None` when
-    /// the BSDF draw fails (leaves the hemisphere).
+    /// Draws a direction: from the guide with probability `a`, else from the BSDF (or phase
+    /// function). `None` when the BSDF draw fails (leaves the hemisphere).
     pub fn sample(&self, rng: &mut Rng) -> Option<DirectionSample> {
         let choice = rng.next_f32();
         let lobe = rng.next_f32();
         let u = rng.next_vec2();
         let (direction, guide_pdf) = match &self.guide {
             Some(guide) if choice < self.a => guide.sample(u),
-            _ => {
-                let s = self.material.sample(self.wo, lobe, u)?;
-                (self.frame.to_world(s.wi), None)
-            }
+            _ => match self.scatterer {
+                Scatterer::Surface { material, wo } => {
+                    let s = material.sample(wo, lobe, u)?;
+                    (self.frame.to_world(s.wi), None)
+                }
+                Scatterer::Medium { travel, g, .. } => {
+                    (sample_henyey_greenstein(travel, g, u), None)
+                }
+            },
         };
         let pdf = match guide_pdf {
             Some(guide) => self.mixture_pdf(direction, guide),

@@ -5,6 +5,7 @@
 use crate::bvh::Bvh;
 use crate::geometry::{Ray, Shape};
 use crate::material::{Material, luminance};
+use crate::medium::{Media, Medium};
 use glam::{Vec2, Vec3};
 
 /// A pinhole camera.
@@ -54,6 +55,11 @@ pub struct Scene {
     /// weighed by MIS against the scattering direction; on by default). Without it, light is
     /// found only by the paths' own directions: what a guide has to learn is then all of it.
     pub next_event: bool,
+    /// The participating media (none by default): paths scatter in them, and next-event
+    /// estimation is attenuated by their transmittance.
+    pub media: Media,
+    /// Longest path, in scattering events (surface and medium).
+    pub max_depth: usize,
     bvh: Bvh,
     /// Emitting triangles, with the cumulative distribution that picks one ∝ area × luminance.
     lights: Vec<u32>,
@@ -106,6 +112,7 @@ pub struct SceneBuilder {
     shapes: Vec<Shape>,
     shape_material: Vec<u16>,
     materials: Vec<Material>,
+    media: Media,
 }
 
 impl SceneBuilder {
@@ -158,6 +165,19 @@ impl SceneBuilder {
         self
     }
 
+    /// The box `[lo, hi]` filled with `medium` (its boundary does not refract; a shape there is
+    /// added apart, if any).
+    pub fn medium_box(&mut self, lo: Vec3, hi: Vec3, medium: Medium) -> &mut Self {
+        self.media.boxes.push((lo, hi, medium));
+        self
+    }
+
+    /// `medium` everywhere outside the medium boxes.
+    pub fn global_medium(&mut self, medium: Medium) -> &mut Self {
+        self.media.global = Some(medium);
+        self
+    }
+
     /// A sphere.
     pub fn sphere(&mut self, center: Vec3, radius: f32, material: u16) -> &mut Self {
         self.shapes.push(Shape::Sphere { center, radius });
@@ -166,7 +186,7 @@ impl SceneBuilder {
     }
 
     /// The finished scene.
-    pub fn build(self, name: &str, camera: Camera, exposure: f32) -> Scene {
+    pub fn build(mut self, name: &str, camera: Camera, exposure: f32) -> Scene {
         let bvh = Bvh::new(&self.shapes);
         let mut lights = Vec::new();
         let mut light_cdf = Vec::new();
@@ -186,6 +206,15 @@ impl SceneBuilder {
             previous = *c;
             *c /= total;
         }
+        if !self.media.is_empty() {
+            self.media.bounds = self
+                .shapes
+                .iter()
+                .map(Shape::bounds)
+                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), (a, b)| {
+                    (lo.min(a), hi.max(b))
+                });
+        }
         Scene {
             name: name.to_string(),
             shapes: self.shapes,
@@ -194,6 +223,8 @@ impl SceneBuilder {
             camera,
             exposure,
             next_event: true,
+            media: self.media,
+            max_depth: crate::integrator::MAX_DEPTH,
             bvh,
             lights,
             light_cdf,
@@ -294,10 +325,14 @@ impl Scene {
     /// A 64-bit fingerprint of everything that decides the image (shapes, materials, camera),
     /// so a stored reference can be checked against the scene it claims to show.
     pub fn fingerprint(&self) -> u64 {
-        let text = format!(
+        let mut text = format!(
             "{:?}{:?}{:?}{:?}",
             self.shapes, self.shape_material, self.materials, self.camera
         );
+        // Scenes without media keep the fingerprint they had before media existed.
+        if !self.media.is_empty() || self.max_depth != crate::integrator::MAX_DEPTH {
+            text += &format!("{:?}{}", self.media, self.max_depth);
+        }
         // FNV-1a.
         text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
             (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3)

@@ -11,29 +11,18 @@ use sdguide::{GuidingConfig, GuidingField, LeafRule, Splitting, SplittingMode};
 use sdguide_render::backend::{Backend, Unguided};
 use sdguide_render::image::Image;
 use sdguide_render::integrator::{Continuations, Guiding, Roulette};
-use sdguide_render::method::field_bounds;
 use sdguide_render::passes::{PassImage, splitting};
-use sdguide_render::render::{TrainingPass, render_pass, render_pass_image, training_pass_with};
+use sdguide_render::render::{render_pass, render_pass_image};
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
+
+mod common;
+use common::trained_with_config;
 
 const ALBEDO: f32 = 0.3;
 const EMISSION: f32 = 1.0;
 const SIZE: (usize, usize) = (40, 30);
 const SPP: u32 = 32;
-
-/// Mean of the pixels and its standard error (pixels are independent estimates).
-fn mean_and_error(image: &Image) -> (f64, f64) {
-    let values: Vec<f64> = image
-        .pixels
-        .iter()
-        .map(|p| (p.x as f64 + p.y as f64 + p.z as f64) / 3.0)
-        .collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
-}
 
 fn render_furnace<B: Backend>(field: Option<&B>) -> Image {
     render_in(&furnace(ALBEDO, EMISSION), field, 7)
@@ -82,42 +71,10 @@ fn trained_with(
     )
 }
 
-fn trained_with_config(
-    scene: &Scene,
-    config: GuidingConfig,
-    roulette: Roulette,
-    mode: Option<SplittingMode>,
-) -> (GuidingField, Vec<PassImage>) {
-    let mut field = GuidingField::new(field_bounds(scene), config).unwrap();
-    let mut passes = Vec::new();
-    for iteration in 0..5 {
-        let pass = TrainingPass {
-            size: SIZE,
-            spp: 1 << iteration,
-            seed: 3,
-            iteration,
-            guide_probability: None,
-            roulette,
-        };
-        let image = training_pass_with(scene, &mut field, &pass, mode.map(|m| (m, &passes[..])));
-        passes.push(image);
-    }
-    (field, passes)
-}
-
 fn assert_converges(image: &Image, what: &str) {
     // Paths are cut after 10 bounces: the part lost, albedo¹¹·L ≈ 2.5e-6, is far below the
     // statistical error.
-    let expected = (EMISSION / (1.0 - ALBEDO)) as f64;
-    let (mean, error) = mean_and_error(image);
-    assert!(
-        error > 0.0 && error < 0.01 * expected,
-        "{what}: error {error}"
-    );
-    assert!(
-        (mean - expected).abs() < 4.0 * error,
-        "{what}: mean {mean} vs {expected} (standard error {error})"
-    );
+    common::assert_converges(image, f64::from(EMISSION / (1.0 - ALBEDO)), what);
 }
 
 #[test]
@@ -281,6 +238,7 @@ fn the_glass_furnace_camera_sees_the_sphere() {
 #[cfg(feature = "openpgl")]
 #[test]
 fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
+    use sdguide_render::method::field_bounds;
     use sdguide_render::openpgl;
     use sdguide_render::render::training_pass;
     let scene = furnace(ALBEDO, EMISSION);
