@@ -47,9 +47,7 @@ use crate::scene::Scene;
 use glam::Vec3;
 use sdguide::{GuidingField, PathRecorder, PathVertex, Splitting, VertexId, continuations};
 
-/// Longest path, in scattering events, unless the scene sets its own
-/// ([`Scene::max_depth`](crate::scene::Scene::max_depth)).
-pub const MAX_DEPTH: usize = 10;
+pub use crate::scene::MAX_DEPTH;
 /// Russian roulette starts after this many scattering events.
 const ROULETTE_DEPTH: usize = 3;
 

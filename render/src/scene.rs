@@ -8,6 +8,9 @@ use crate::material::{Material, luminance};
 use crate::medium::{Media, Medium};
 use glam::{Vec2, Vec3};
 
+/// Longest path, in scattering events, unless the scene sets its own ([`Scene::max_depth`]).
+pub const MAX_DEPTH: usize = 10;
+
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
@@ -224,7 +227,7 @@ impl SceneBuilder {
             exposure,
             next_event: true,
             media: self.media,
-            max_depth: crate::integrator::MAX_DEPTH,
+            max_depth: MAX_DEPTH,
             bvh,
             lights,
             light_cdf,
@@ -330,7 +333,7 @@ impl Scene {
             self.shapes, self.shape_material, self.materials, self.camera
         );
         // Scenes without media keep the fingerprint they had before media existed.
-        if !self.media.is_empty() || self.max_depth != crate::integrator::MAX_DEPTH {
+        if !self.media.is_empty() || self.max_depth != MAX_DEPTH {
             text += &format!("{:?}{}", self.media, self.max_depth);
         }
         // FNV-1a.

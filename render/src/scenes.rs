@@ -52,7 +52,7 @@ pub const BUILT_IN: [BuiltIn; 8] = [
     BuiltIn {
         name: "fog",
         make: fog,
-        compared: false,
+        compared: true,
     },
     BuiltIn {
         name: "medium-furnace",

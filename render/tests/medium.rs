@@ -48,7 +48,13 @@ fn trained(scene: &Scene, rule: LeafRule, mode: Option<SplittingMode>) -> Guidin
 fn assert_converges(image: &Image, what: &str) {
     // Paths are cut after 200 events; each wall bounce keeps 0.3 of the weight, and a path
     // meets a wall at least every few events, so the part lost is far below the error.
-    common::assert_converges(image, f64::from(EMISSION / (1.0 - ALBEDO)), what);
+    let expected = f64::from(EMISSION / (1.0 - ALBEDO));
+    common::assert_converges(image, expected, what);
+    // And within 3σ, the bound the volume work was asked to show.
+    let (mean, error) = common::mean_and_error(image);
+    let z = (mean - expected) / error;
+    eprintln!("{what}: mean {mean:.5}, expected {expected:.5}, z = {z:+.2}");
+    assert!(z.abs() < 3.0, "{what}: z = {z}");
 }
 
 #[test]
