@@ -17,7 +17,7 @@ use sdguide_render::scene::Scene;
 use sdguide_render::scenes::{furnace, furnace_sized, glass_furnace};
 
 mod common;
-use common::trained_with_config;
+use common::{render_in, trained_with_config};
 
 const ALBEDO: f32 = 0.3;
 const EMISSION: f32 = 1.0;
@@ -26,19 +26,6 @@ const SPP: u32 = 32;
 
 fn render_furnace<B: Backend>(field: Option<&B>) -> Image {
     render_in(&furnace(ALBEDO, EMISSION), field, 7)
-}
-
-/// The mean of `SPP` samples per pixel of `scene`, guided by `field` (not recording).
-fn render_in<B: Backend>(scene: &Scene, field: Option<&B>, seed: u64) -> Image {
-    let mut sum = Image::new(SIZE.0, SIZE.1);
-    let guiding = field.map(|field| Guiding {
-        field,
-        record: false,
-        guide_probability: None,
-    });
-    render_pass(scene, guiding, &mut sum, SPP, seed, 0);
-    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
-    sum
 }
 
 /// A field trained on `scene` with `rule`: five passes of 1, 2, …, 16 spp, cells split early.

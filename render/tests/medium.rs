@@ -7,31 +7,17 @@
 
 use sdguide::{GuidingConfig, GuidingField, LeafRule, SplittingMode};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::{Guiding, Roulette};
-use sdguide_render::render::render_pass;
+use sdguide_render::integrator::Roulette;
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::medium_furnace;
 
 mod common;
-use common::trained_with_config;
+use common::{render_in, trained_with_config};
 
 const ALBEDO: f32 = 0.3;
 const EMISSION: f32 = 1.0;
+#[cfg(feature = "openpgl")]
 const SIZE: (usize, usize) = (40, 30);
-const SPP: u32 = 32;
-
-/// The mean of `SPP` samples per pixel, guided by `field` when given (not recording).
-fn render(scene: &Scene, field: Option<&GuidingField>, seed: u64) -> Image {
-    let mut sum = Image::new(SIZE.0, SIZE.1);
-    let guiding = field.map(|field| Guiding {
-        field,
-        record: false,
-        guide_probability: None,
-    });
-    render_pass(scene, guiding, &mut sum, SPP, seed, 0);
-    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
-    sum
-}
 
 /// A field with volume guides trained on `scene` (see [`trained_with_config`]), with classic
 /// roulette or with `mode` roulette and splitting.
@@ -60,7 +46,7 @@ fn assert_converges(image: &Image, what: &str) {
 #[test]
 fn unguided_medium_furnace_converges_to_the_analytic_radiance() {
     let scene = medium_furnace(ALBEDO, EMISSION);
-    assert_converges(&render(&scene, None, 7), "unguided");
+    assert_converges(&render_in(&scene, None::<&GuidingField>, 7), "unguided");
 }
 
 #[test]
@@ -79,7 +65,7 @@ fn guided_medium_furnace_converges_to_the_analytic_radiance() {
         let at = glam::Vec3::new(0.3, -0.2, 0.4);
         assert!(field.volume_distribution(at).guide_probability() > 0.0);
         assert_converges(
-            &render(&scene, Some(&field), 7),
+            &render_in(&scene, Some(&field), 7),
             &format!("{rule:?}, {mode:?}"),
         );
     }
@@ -105,13 +91,5 @@ fn open_pgl_guided_medium_furnace_converges_to_the_analytic_radiance() {
             .volume_distribution(at, glam::Vec3::X, 0.5, 0.5)
             .is_some()
     );
-    let mut sum = Image::new(SIZE.0, SIZE.1);
-    let guiding = Guiding {
-        field: &guide,
-        record: false,
-        guide_probability: None,
-    };
-    render_pass(&scene, Some(guiding), &mut sum, SPP, 7, 0);
-    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
-    assert_converges(&sum, "Open PGL");
+    assert_converges(&render_in(&scene, Some(&guide), 7), "Open PGL");
 }

@@ -68,26 +68,35 @@ pub(crate) trait GuideViewMut: GuideView {
     fn set_selection(&mut self, selection: GuideSelection);
 }
 
-impl GuideView for Guide {
-    fn sampling(&self) -> &SamplingTree {
-        &self.sampling
-    }
-    fn recording(&self) -> &RecordingTree {
-        &self.recording
-    }
-    fn selection(&self) -> &GuideSelection {
-        &self.selection
-    }
-}
+/// [`GuideView`] and [`GuideViewMut`] for a type that holds a guide as its fields `sampling`,
+/// `recording` and `selection` (a [`Guide`], and a region's surface guide).
+macro_rules! guide_fields {
+    ($t:ty) => {
+        impl $crate::region::GuideView for $t {
+            fn sampling(&self) -> &$crate::quadtree::SamplingTree {
+                &self.sampling
+            }
+            fn recording(&self) -> &$crate::quadtree::RecordingTree {
+                &self.recording
+            }
+            fn selection(&self) -> &$crate::guide_probability::GuideSelection {
+                &self.selection
+            }
+        }
 
-impl GuideViewMut for Guide {
-    fn recording_mut(&mut self) -> &mut RecordingTree {
-        &mut self.recording
-    }
-    fn set_selection(&mut self, selection: GuideSelection) {
-        self.selection = selection;
-    }
+        impl $crate::region::GuideViewMut for $t {
+            fn recording_mut(&mut self) -> &mut $crate::quadtree::RecordingTree {
+                &mut self.recording
+            }
+            fn set_selection(&mut self, selection: $crate::guide_probability::GuideSelection) {
+                self.selection = selection;
+            }
+        }
+    };
 }
+pub(super) use guide_fields;
+
+guide_fields!(Guide);
 
 impl<T: GuideView> GuideView for &T {
     fn sampling(&self) -> &SamplingTree {

@@ -401,26 +401,7 @@ impl Region {
     }
 }
 
-impl GuideView for Region {
-    fn sampling(&self) -> &SamplingTree {
-        &self.sampling
-    }
-    fn recording(&self) -> &RecordingTree {
-        &self.recording
-    }
-    fn selection(&self) -> &GuideSelection {
-        &self.selection
-    }
-}
-
-impl GuideViewMut for Region {
-    fn recording_mut(&mut self) -> &mut RecordingTree {
-        &mut self.recording
-    }
-    fn set_selection(&mut self, selection: GuideSelection) {
-        self.selection = selection;
-    }
-}
+guide::guide_fields!(Region);
 
 #[cfg(test)]
 mod tests {

@@ -2,11 +2,13 @@
 #![allow(dead_code)]
 
 use sdguide::{GuidingConfig, GuidingField, SplittingMode};
+use sdguide_render::backend::Backend;
 use sdguide_render::image::Image;
+use sdguide_render::integrator::Guiding;
 use sdguide_render::integrator::Roulette;
 use sdguide_render::method::field_bounds;
 use sdguide_render::passes::PassImage;
-use sdguide_render::render::{TrainingPass, training_pass, training_pass_with};
+use sdguide_render::render::{TrainingPass, render_pass, training_pass, training_pass_with};
 use sdguide_render::scene::Scene;
 use sdguide_render::scenes::door;
 
@@ -72,4 +74,19 @@ pub fn assert_converges(image: &Image, expected: f64, what: &str) {
         (mean - expected).abs() < 4.0 * error,
         "{what}: mean {mean} vs {expected} (standard error {error})"
     );
+}
+
+/// The mean of 32 samples per pixel of `scene` at 40 × 30, guided by `field` when given (not
+/// recording), from `seed`.
+pub fn render_in<B: Backend>(scene: &Scene, field: Option<&B>, seed: u64) -> Image {
+    const SPP: u32 = 32;
+    let mut sum = Image::new(40, 30);
+    let guiding = field.map(|field| Guiding {
+        field,
+        record: false,
+        guide_probability: None,
+    });
+    render_pass(scene, guiding, &mut sum, SPP, seed, 0);
+    sum.pixels.iter_mut().for_each(|p| *p /= SPP as f32);
+    sum
 }

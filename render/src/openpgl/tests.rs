@@ -1,0 +1,109 @@
+//! Tests of the Open PGL wrapper.
+
+use super::*;
+
+/// 20 000 records of light arriving from within about 17° of `axis`, at points spread over
+/// the unit cube, inside a medium or not.
+fn records_around(axis: Vec3, volume: bool) -> Vec<Record> {
+    let (u, v) = axis.any_orthonormal_pair();
+    (0..20_000u32)
+        .map(|i| {
+            let t = i as f32 / 20_000.0;
+            let phi = t * 97.0;
+            Record {
+                position: Vec3::new(t, (t * 7.0).fract(), (t * 13.0).fract()),
+                direction: (axis + 0.3 * (u * phi.cos() + v * phi.sin())).normalize(),
+                radiance: 1.0,
+                pdf: 1.0,
+                distance: 1.0,
+                volume,
+            }
+        })
+        .collect()
+}
+
+fn record(radiance: f32, pdf: f32, distance: f32) -> Record {
+    Record {
+        position: Vec3::splat(0.5),
+        direction: Vec3::Z,
+        radiance,
+        pdf,
+        distance,
+        volume: false,
+    }
+}
+
+#[test]
+fn record_keeps_valid_samples_and_drops_what_open_pgl_would_assert_on() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let guide = Guide::new(bounds, false, 1).unwrap();
+    guide.record(&[
+        record(1.0, 0.5, 2.0),
+        record(0.0, 0.5, 2.0), // a zero-value sample, kept apart
+        record(f32::NAN, 0.5, 2.0),
+        record(1.0, 0.0, 2.0),
+        record(1.0, -1.0, 2.0),
+        record(-1.0, 0.5, 2.0),
+        record(1.0, 0.5, f32::INFINITY),
+        record(2.0, 0.25, 1.0),
+    ]);
+    assert_eq!(guide.pending_samples(), 2);
+}
+
+#[test]
+fn update_consumes_the_samples_and_gives_distributions_that_integrate_to_one() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let mut guide = Guide::new(bounds, false, 1).unwrap();
+    // Before the first update there is nothing to sample.
+    assert!(guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).is_none());
+    // Light from around +z, from points spread over the cube.
+    let records = records_around(Vec3::Z, false);
+    for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+        guide.record(chunk);
+    }
+    assert_eq!(guide.pending_samples(), records.len());
+    guide.update();
+    assert_eq!(guide.pending_samples(), 0);
+    assert_eq!(guide.iteration(), 1);
+    let d = guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).unwrap();
+    // ∫ pdf dω over a 256 × 512 equal-area grid (z uniform, φ uniform): the mixture of von
+    // Mises–Fisher lobes integrates to one, up to the grid's error at its sharpest lobe.
+    let (nz, nphi) = (256, 512);
+    let mut integral = 0.0f64;
+    for i in 0..nz {
+        for j in 0..nphi {
+            let z = -1.0 + 2.0 * (i as f32 + 0.5) / nz as f32;
+            let phi = std::f32::consts::TAU * (j as f32 + 0.5) / nphi as f32;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            integral += d.pdf(Vec3::new(r * phi.cos(), r * phi.sin(), z)) as f64;
+        }
+    }
+    integral *= 4.0 * std::f64::consts::PI / (nz * nphi) as f64;
+    assert!((integral - 1.0).abs() < 0.02, "integral {integral}");
+    // The learned distribution favours the light's direction.
+    assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z));
+}
+
+#[test]
+fn volume_samples_train_the_volume_field_and_its_phase_product() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let mut guide = Guide::new(bounds, true, 2).unwrap();
+    // Inside a medium, light from around −x.
+    let records = records_around(-Vec3::X, true);
+    for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+        guide.record(chunk);
+    }
+    guide.update();
+    let x = Vec3::splat(0.5);
+    let volume = guide.volume_distribution(x, Vec3::Y, 0.0, 0.5).unwrap();
+    assert!(volume.pdf(-Vec3::X) > 10.0 * volume.pdf(Vec3::X));
+    // With a forward-scattering phase function along +y, the product leans toward it.
+    let product = guide.volume_distribution(x, Vec3::Y, 0.8, 0.5).unwrap();
+    let lean = Vec3::new(-1.0, 1.0, 0.0).normalize();
+    assert!(product.pdf(lean) / product.pdf(-Vec3::X) > volume.pdf(lean) / volume.pdf(-Vec3::X));
+    for k in 0..32 {
+        let u = Vec2::new((k as f32 + 0.5) / 32.0, 0.37);
+        let d = product.sample(u);
+        assert!(product.pdf(d) > 0.0);
+    }
+}
