@@ -93,12 +93,13 @@ impl GuidingField {
                               enough to partition in f32 where the box lies",
             });
         }
-        let volumes = config.volumes;
+        let mut root = Region::default();
+        root.set_volume(config.volumes.then(Guide::default));
         let mut field = Self {
             bounds,
             config,
             spatial: SpatialTree::new(cube),
-            regions: vec![Region::default().with_volume(volumes.then(Guide::default))],
+            regions: vec![root],
             iteration: 0,
             rejected: RejectCounters::default(),
             rejected_before: Rejections::default(),

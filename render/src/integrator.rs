@@ -391,11 +391,7 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
                 self.ray(owner);
                 if !scene.occluded(&shadow) {
                     let weight = power_heuristic(light.pdf, sampler.pdf(light.direction).mixture);
-                    let transmittance = if scene.media.is_empty() {
-                        1.0
-                    } else {
-                        scene.media.transmittance(&shadow, shadow.t_max)
-                    };
+                    let transmittance = scene.media.transmittance(&shadow, shadow.t_max);
                     let l = f * light.radiance * (transmittance * weight / light.pdf);
                     self.scratch.path.add_radiance(owner, l);
                 }

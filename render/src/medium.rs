@@ -79,8 +79,8 @@ impl Media {
             .iter()
             .take(MAX_BOXES)
             .map(|&(lo, hi, _)| (lo, hi));
+        let inv = ray.direction.recip();
         for (lo, hi) in boxes.chain(bounds) {
-            let inv = ray.direction.recip();
             let (a, b) = ((lo - ray.origin) * inv, (hi - ray.origin) * inv);
             let (near, far) = (a.min(b).max_element(), a.max(b).min_element());
             for t in [near, far] {
@@ -136,8 +136,11 @@ impl Media {
         found
     }
 
-    /// The transmittance along `ray` from its origin to `t_max`.
+    /// The transmittance along `ray` from its origin to `t_max` (1 in a scene without media).
     pub fn transmittance(&self, ray: &Ray, t_max: f32) -> f32 {
+        if self.is_empty() {
+            return 1.0;
+        }
         let mut depth = 0.0f32;
         self.walk(ray, t_max, |t0, t1, medium| {
             if let Some(m) = medium {

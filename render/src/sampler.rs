@@ -37,8 +37,12 @@ pub struct MixturePdf {
 /// What scatters at a vertex.
 #[derive(Clone, Copy)]
 enum Scatterer<'a> {
-    /// A surface's BSDF, with the outgoing direction in the shading frame.
-    Surface { material: &'a Material, wo: Vec3 },
+    /// A surface's BSDF, its shading frame, and the outgoing direction in that frame.
+    Surface {
+        material: &'a Material,
+        frame: Frame,
+        wo: Vec3,
+    },
     /// A medium's phase function about the direction the path arrived along, and its albedo
     /// (the weight of a scattering event under free-flight sampling).
     Medium { travel: Vec3, g: f32, albedo: f32 },
@@ -47,7 +51,6 @@ enum Scatterer<'a> {
 /// The directional sampling strategy at one vertex: the BSDF's (or phase function's), mixed
 /// with the guide's when there is a guiding field.
 pub struct VertexSampler<'a, B: Backend + 'a = GuidingField> {
-    pub(crate) frame: Frame,
     scatterer: Scatterer<'a>,
     pub(crate) guide: Option<B::Vertex<'a>>,
     /// Probability of drawing from the guide.
@@ -84,9 +87,9 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         let guide = guide.and_then(|g| g.at(position, normal, lookup));
         let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
         VertexSampler {
-            frame,
             scatterer: Scatterer::Surface {
                 material,
+                frame,
                 wo: frame.to_local(wo),
             },
             guide,
@@ -108,7 +111,6 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         let guide = guide.and_then(|g| g.in_medium(position, travel, medium.g, lookup));
         let a = guide.as_ref().map_or(0.0, |g| g.guide_probability());
         VertexSampler {
-            frame: Frame::new(travel),
             scatterer: Scatterer::Medium {
                 travel,
                 g: medium.g,
@@ -122,7 +124,7 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
     /// The shading normal, at a surface (`None` in a medium).
     pub fn normal(&self) -> Option<Vec3> {
         match self.scatterer {
-            Scatterer::Surface { .. } => Some(self.frame.normal()),
+            Scatterer::Surface { frame, .. } => Some(frame.normal()),
             Scatterer::Medium { .. } => None,
         }
     }
@@ -145,8 +147,12 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
     /// times the albedo.
     pub fn bsdf_cos(&self, direction: Vec3) -> Vec3 {
         match self.scatterer {
-            Scatterer::Surface { material, wo } => {
-                let wi = self.frame.to_local(direction);
+            Scatterer::Surface {
+                material,
+                frame,
+                wo,
+            } => {
+                let wi = frame.to_local(direction);
                 material.eval(wo, wi) * wi.z.abs()
             }
             Scatterer::Medium { travel, g, albedo } => {
@@ -158,7 +164,11 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
     /// The BSDF's (or phase function's) own sampling pdf of `direction`.
     fn technique_pdf(&self, direction: Vec3) -> f32 {
         match self.scatterer {
-            Scatterer::Surface { material, wo } => material.pdf(wo, self.frame.to_local(direction)),
+            Scatterer::Surface {
+                material,
+                frame,
+                wo,
+            } => material.pdf(wo, frame.to_local(direction)),
             Scatterer::Medium { travel, g, .. } => henyey_greenstein(travel.dot(direction), g),
         }
     }
@@ -189,9 +199,13 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         let (direction, guide_pdf) = match &self.guide {
             Some(guide) if choice < self.a => guide.sample(u),
             _ => match self.scatterer {
-                Scatterer::Surface { material, wo } => {
+                Scatterer::Surface {
+                    material,
+                    frame,
+                    wo,
+                } => {
                     let s = material.sample(wo, lobe, u)?;
-                    (self.frame.to_world(s.wi), None)
+                    (frame.to_world(s.wi), None)
                 }
                 Scatterer::Medium { travel, g, .. } => {
                     (sample_henyey_greenstein(travel, g, u), None)

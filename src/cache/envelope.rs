@@ -33,10 +33,9 @@ pub(super) fn write_envelope(sections: &[(u32, u32, Vec<u8>)]) -> Vec<u8> {
     out.0
 }
 
-/// The sections of one kind of guide (surface or volume): its trees and the sums beside them.
+/// The optional sections of one kind of guide (surface or volume): the sums beside its trees.
 #[derive(Default)]
 pub(super) struct GuideSections<'a> {
-    pub(super) directional: Option<&'a [u8]>,
     pub(super) selection: Option<&'a [u8]>,
     pub(super) quadrants: Option<&'a [u8]>,
     pub(super) guide_cost: Option<&'a [u8]>,
@@ -48,7 +47,10 @@ pub(super) struct GuideSections<'a> {
 pub(super) struct Sections<'a> {
     pub(super) meta: &'a [u8],
     pub(super) spatial: &'a [u8],
+    pub(super) directional: &'a [u8],
     pub(super) surface: GuideSections<'a>,
+    /// `VOLUME_DIRECTIONAL`, required where `META` says the field has volumes.
+    pub(super) volume_directional: Option<&'a [u8]>,
     pub(super) volume: GuideSections<'a>,
     pub(super) continuations: Option<&'a [u8]>,
     pub(super) surfaces: Option<&'a [u8]>,
@@ -112,7 +114,8 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         .filter(|&t| t <= body_end)
         .ok_or_else(|| corrupt("sections", format!("{section_count} entries do not fit")))?;
     let mut table = In::new(&bytes[HEADER_LEN..table_end], "sections");
-    let (mut meta, mut spatial, mut continuations, mut surfaces) = (None, None, None, None);
+    let (mut meta, mut spatial, mut directional) = (None, None, None);
+    let (mut volume_directional, mut continuations, mut surfaces) = (None, None, None);
     let (mut surface, mut volume) = (GuideSections::default(), GuideSections::default());
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
@@ -131,14 +134,14 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         let slot = match kind {
             SECTION_META => &mut meta,
             SECTION_SPATIAL => &mut spatial,
-            SECTION_DIRECTIONAL => &mut surface.directional,
+            SECTION_DIRECTIONAL => &mut directional,
             SECTION_SELECTION => &mut surface.selection,
             SECTION_QUADRANTS => &mut surface.quadrants,
             SECTION_CONTINUATIONS => &mut continuations,
             SECTION_SURFACES => &mut surfaces,
             SECTION_GUIDE_COST => &mut surface.guide_cost,
             SECTION_PENDING => &mut surface.pending,
-            SECTION_VOLUME_DIRECTIONAL => &mut volume.directional,
+            SECTION_VOLUME_DIRECTIONAL => &mut volume_directional,
             SECTION_VOLUME_SELECTION => &mut volume.selection,
             SECTION_VOLUME_QUADRANTS => &mut volume.quadrants,
             SECTION_VOLUME_GUIDE_COST => &mut volume.guide_cost,
@@ -159,13 +162,12 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         }
     }
     let missing = |name: &str| corrupt("sections", format!("no {name} section"));
-    if surface.directional.is_none() {
-        return Err(missing("directional"));
-    }
     Ok(Sections {
         meta: meta.ok_or_else(|| missing("meta"))?,
         spatial: spatial.ok_or_else(|| missing("spatial"))?,
+        directional: directional.ok_or_else(|| missing("directional"))?,
         surface,
+        volume_directional,
         volume,
         continuations,
         surfaces,

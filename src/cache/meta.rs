@@ -30,7 +30,7 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.u64(field.directional_refused);
     let rejected = [field.rejected_before, field.rejected.get()].map(Rejections::to_array);
     for counts in rejected {
-        for &c in &counts[..5] {
+        for &c in &counts[..REASONS_3_0] {
             out.u64(c);
         }
     }
@@ -67,7 +67,7 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     out.u32(u32::from(c.volumes));
     out.u32(0);
     for counts in rejected {
-        out.u64(counts[5]);
+        out.u64(counts[REASONS_3_0]);
     }
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
@@ -106,7 +106,7 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     field.directional_refused = r.u64()?;
     let mut counts = [[0u64; REASONS]; 2];
     for c in &mut counts {
-        for x in &mut c[..5] {
+        for x in &mut c[..REASONS_3_0] {
             *x = r.u64()?;
         }
     }
@@ -174,8 +174,8 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
             return Err(corrupt("meta", format!("unknown flags {flags:#x}")));
         }
         field.config.volumes = flags == 1;
-        counts[0][5] = r.u64()?;
-        counts[1][5] = r.u64()?;
+        counts[0][REASONS_3_0] = r.u64()?;
+        counts[1][REASONS_3_0] = r.u64()?;
     }
     field.rejected_before = Rejections::from_array(counts[0]);
     field.rejected = RejectCounters::from_rejections(Rejections::from_array(counts[1]));

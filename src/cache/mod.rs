@@ -121,6 +121,9 @@ const META_LEN_2_3: usize = 192;
 const META_LEN_2_5: usize = 196;
 /// Length of the `META` section in format 2.6.
 const META_LEN_2_6: usize = 200;
+/// Rejection reasons whose counters `META` holds at offsets 96 and 136 (those of 1.0–3.0); the
+/// ones added since are appended at its end.
+const REASONS_3_0: usize = 5;
 /// Length of the `META` section in format 3.0.
 const META_LEN_3_0: usize = 216;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
@@ -261,7 +264,7 @@ impl GuidingField {
 
     /// The cache as bytes (what [`save`](Self::save) writes).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let sections = [
+        let mut sections = vec![
             (SECTION_META, FLAG_REQUIRED, encode_meta(self)),
             (
                 SECTION_SPATIAL,
@@ -284,24 +287,21 @@ impl GuidingField {
             (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.regions)),
             (SECTION_PENDING, 0, encode_pending(&self.regions)),
         ];
-        let volumes: Vec<&Guide> = self.regions.iter().filter_map(Region::volume).collect();
-        let volume_sections = [
-            (
-                SECTION_VOLUME_DIRECTIONAL,
-                FLAG_REQUIRED,
-                encode_directional(&volumes),
-            ),
-            (SECTION_VOLUME_SELECTION, 0, encode_selection(&volumes)),
-            (SECTION_VOLUME_QUADRANTS, 0, encode_quadrants(&volumes)),
-            (SECTION_VOLUME_GUIDE_COST, 0, encode_guide_cost(&volumes)),
-            (SECTION_VOLUME_PENDING, 0, encode_pending(&volumes)),
-        ];
-        let volume_sections = if self.config.volumes {
-            &volume_sections[..]
-        } else {
-            &[]
-        };
-        write_envelope(&[&sections[..], volume_sections].concat())
+        if self.config.volumes {
+            let volumes: Vec<&Guide> = self.regions.iter().filter_map(Region::volume).collect();
+            sections.extend([
+                (
+                    SECTION_VOLUME_DIRECTIONAL,
+                    FLAG_REQUIRED,
+                    encode_directional(&volumes),
+                ),
+                (SECTION_VOLUME_SELECTION, 0, encode_selection(&volumes)),
+                (SECTION_VOLUME_QUADRANTS, 0, encode_quadrants(&volumes)),
+                (SECTION_VOLUME_GUIDE_COST, 0, encode_guide_cost(&volumes)),
+                (SECTION_VOLUME_PENDING, 0, encode_pending(&volumes)),
+            ]);
+        }
+        write_envelope(&sections)
     }
 
     /// Reads a cache written by [`save`](Self::save). The loaded field answers `sample` and
@@ -329,16 +329,12 @@ impl GuidingField {
         let major = sections.major;
         let mut field = decode_meta(sections.meta)?;
         field.spatial = decode_spatial(sections.spatial, &field)?;
-        let surface = &sections.surface;
-        let Some(directional) = surface.directional else {
-            return Err(corrupt("sections", "no directional section"));
-        };
-        let guides = decode_directional(directional, "directional", &field, major)?;
+        let guides = decode_directional(sections.directional, "directional", &field, major)?;
         field.regions = guides
             .into_iter()
             .map(|g| Region::new(g.sampling, g.recording))
             .collect();
-        let volumes = match (field.config.volumes, sections.volume.directional) {
+        let volumes = match (field.config.volumes, sections.volume_directional) {
             (true, Some(bytes)) => Some(decode_directional(
                 bytes,
                 "volume directional",
@@ -360,11 +356,11 @@ impl GuidingField {
             decode_surfaces(bytes, &mut field.regions, major)?;
         }
         let deferred = field.config.directional_filter.defers();
-        decode_guide_sums(surface, &mut field.regions, major, deferred)?;
+        decode_guide_sums(&sections.surface, &mut field.regions, major, deferred)?;
         if let Some(mut volumes) = volumes {
             decode_guide_sums(&sections.volume, &mut volumes, major, deferred)?;
             for (region, guide) in field.regions.iter_mut().zip(volumes) {
-                *region = std::mem::take(region).with_volume(Some(guide));
+                region.set_volume(Some(guide));
             }
         }
         Ok(field)

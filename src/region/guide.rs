@@ -110,27 +110,6 @@ impl<T: GuideView> GuideView for &T {
     }
 }
 
-impl<T: GuideViewMut> GuideViewMut for &mut T {
-    fn recording_mut(&mut self) -> &mut RecordingTree {
-        (*self).recording_mut()
-    }
-    fn set_selection(&mut self, selection: GuideSelection) {
-        (*self).set_selection(selection);
-    }
-}
-
-impl<T: GuideView> GuideView for &mut T {
-    fn sampling(&self) -> &SamplingTree {
-        (**self).sampling()
-    }
-    fn recording(&self) -> &RecordingTree {
-        (**self).recording()
-    }
-    fn selection(&self) -> &GuideSelection {
-        (**self).selection()
-    }
-}
-
 /// Ends a guide's iteration: one step of the guide probability (and whether the guide pays for
 /// its cost: not asked where the region's renderer recorded continuations, `splitting`), then
 /// the next sampling and recording trees. A guide that counted no sample keeps its

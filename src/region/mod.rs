@@ -122,10 +122,9 @@ impl Region {
         }
     }
 
-    /// The region with a guide for medium vertices (learned from nothing yet), or without.
-    pub(crate) fn with_volume(mut self, volume: Option<Guide>) -> Self {
+    /// Gives the region a guide for medium vertices, or takes it away.
+    pub(crate) fn set_volume(&mut self, volume: Option<Guide>) {
         self.volume = volume.map(Box::new);
-        self
     }
 
     /// The guide of medium vertices, if the region keeps one.
