@@ -1,6 +1,12 @@
 //! With the `openpgl` feature: builds the vendored Intel Open PGL (CMake, oneTBB) into the build
 //! directory under `target/` and links the demo against it. Without the feature: nothing.
 //!
+//! Open PGL is built with its experimental radiance caches (`OPENPGL_EF_RADIANCE_CACHES`), which
+//! its guided Russian roulette takes its adjoint from; they change the layout of the sample
+//! data the demo passes, so an installed Open PGL without them is refused. Its image-space
+//! guiding buffer (`OPENPGL_EF_IMAGE_SPACE_GUIDING_BUFFER`) is left off: it needs Intel Open
+//! Image Denoise 2.2 or later, which no registry this project builds from carries.
+//!
 //! Where the source comes from, in order: `OPENPGL_DIR`, an Open PGL already installed there
 //! (nothing is built); `OPENPGL_TARBALL`, a release tarball; else the tarball vendored next to
 //! the project, `../shared/vendor/openpgl-0.7.1.tar.gz` from the workspace root.
@@ -30,6 +36,7 @@ mod openpgl {
             .find(|d| d.join("libopenpgl.so").exists())
             .unwrap_or_else(|| panic!("no libopenpgl.so under {}", prefix.display()));
         let version = version(&prefix.join("include/openpgl/version.h"));
+        radiance_caches(&prefix.join("include/openpgl/defines.h"));
         println!("cargo:rustc-env=OPENPGL_VERSION={version}");
         println!("cargo:rustc-link-search=native={}", lib.display());
         println!("cargo:rustc-link-lib=dylib=openpgl");
@@ -74,7 +81,22 @@ mod openpgl {
             .profile("Release")
             .define("OPENPGL_BUILD_STATIC", "OFF")
             .define("OPENPGL_BUILD_TOOLS", "OFF")
+            .define("OPENPGL_EF_RADIANCE_CACHES", "ON")
             .build()
+    }
+
+    /// Panics unless the Open PGL under `defines.h` was built with its radiance caches: the
+    /// demo's sample layout has their fields.
+    fn radiance_caches(defines: &Path) {
+        let text = std::fs::read_to_string(defines)
+            .unwrap_or_else(|e| panic!("cannot read {}: {e}", defines.display()));
+        assert!(
+            text.lines()
+                .any(|l| l.trim() == "#define OPENPGL_RADIANCE_CACHES"),
+            "the Open PGL at {} was built without OPENPGL_EF_RADIANCE_CACHES, which the demo \
+             needs (its guided Russian roulette, and the sample layout it passes)",
+            defines.display()
+        );
     }
 
     fn version(header: &Path) -> String {

@@ -39,8 +39,8 @@ pub trait Backend: Sync {
     }
 
     /// Records one vertex of a training path: its sample (as the path recorder builds it),
-    /// and how far its direction reached before it hit something (infinite if nothing).
-    fn record(&self, sample: &Sample, distance: f32);
+    /// and what the integrator knows of its two segments.
+    fn record(&self, sample: &Sample, segment: Segment);
 
     /// Rebuilds the distributions from what was recorded (between passes).
     fn refine(&mut self);
@@ -50,6 +50,25 @@ pub trait Backend: Sync {
     fn as_field(&self) -> Option<&GuidingField> {
         None
     }
+}
+
+/// What the integrator knows of a recorded vertex beyond its [`Sample`]: what Open PGL's
+/// parallax compensation and radiance cache need.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    /// How far the vertex's direction reached before it hit something (infinite if nothing).
+    pub distance: f32,
+    /// The unit direction from the vertex back along the path, toward the camera.
+    pub outgoing: Vec3,
+}
+
+impl Segment {
+    /// A vertex whose segments were not kept: its direction reached nothing, and no direction
+    /// leads back (a zero vector, which Open PGL's cache files under one bin).
+    pub const UNKNOWN: Segment = Segment {
+        distance: f32::INFINITY,
+        outgoing: Vec3::ZERO,
+    };
 }
 
 /// A backend's directional distribution at one vertex.
@@ -63,6 +82,11 @@ pub trait VertexGuide {
     fn guide_probability(&self) -> f32;
     /// The continuation estimate of the vertex's cell, where the backend learns one.
     fn continuation(&self) -> Option<ContinuationEstimate> {
+        None
+    }
+    /// The luminance of the radiance the vertex's cell is estimated to send toward `direction`
+    /// (unit, away from the vertex), where the backend keeps a radiance cache (Open PGL's).
+    fn outgoing_radiance(&self, _direction: Vec3) -> Option<f32> {
         None
     }
 }
@@ -93,7 +117,7 @@ impl Backend for GuidingField {
         ))
     }
 
-    fn record(&self, sample: &Sample, _distance: f32) {
+    fn record(&self, sample: &Sample, _: Segment) {
         GuidingField::record(self, sample);
     }
 
@@ -156,7 +180,7 @@ impl Backend for Unguided {
         None
     }
 
-    fn record(&self, _: &Sample, _: f32) {}
+    fn record(&self, _: &Sample, _: Segment) {}
 
     fn refine(&mut self) {}
 }

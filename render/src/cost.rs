@@ -6,8 +6,7 @@
 //! measures; a ratio within one round of a fraction of a second cancels the drift, and
 //! alternating which pass goes first cancels what one pass leaves in the cache for the next.
 
-use crate::integrator::Guiding;
-use crate::method::Rrs;
+use crate::integrator::{Continuing, Guiding};
 use crate::passes::PassImage;
 use crate::render::render_pass_image;
 use crate::scene::Scene;
@@ -69,7 +68,7 @@ pub fn paired_cost(
             render_pass_image(
                 scene,
                 guide,
-                (Rrs::Classic.roulette(), None),
+                &Continuing::CLASSIC,
                 &mut image,
                 (spp, 1, round),
             );
@@ -86,7 +85,7 @@ pub fn paired_cost(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::{Budget, Method, Training, render};
+    use crate::method::{Budget, Method, Rrs, Training, render};
     use crate::scenes;
     use sdguide::GuidingConfig;
 

@@ -2,8 +2,8 @@
 //!
 //! A unidirectional path tracer with next-event estimation (unless the scene turns it off),
 //! multiple importance sampling (power heuristic), and Russian roulette — classic, by the
-//! path's throughput, none, or efficiency-aware roulette and splitting from the field's
-//! continuation estimates. Paths are traced depth first, recursively, so that a vertex may have
+//! path's throughput, none, efficiency-aware roulette and splitting from the field's
+//! continuation estimates, or (for the peer) Open PGL's guided roulette. Paths are traced depth first, recursively, so that a vertex may have
 //! several continuations. Smooth dielectrics are delta vertices, passed through without a light
 //! sample or a guide lookup. With guiding, every scattering direction is drawn from the
 //! **one-sample mixture** `q = a·p_guide + (1 − a)·p_bsdf`, where `p_guide` is the field's
@@ -38,7 +38,7 @@
 //! the same mixture, MIS and recorded radiance, with the peer's distribution in the guide's
 //! place, so that the two libraries are compared in one renderer.
 
-use crate::backend::{Backend, VertexGuide};
+use crate::backend::{Backend, Segment, VertexGuide};
 use crate::geometry::{Frame, Ray};
 use crate::material::luminance;
 use crate::rng::Rng;
@@ -51,7 +51,7 @@ pub use crate::scene::MAX_DEPTH;
 /// Russian roulette starts after this many scattering events.
 const ROULETTE_DEPTH: usize = 3;
 
-/// Whether a path plays classic throughput roulette where no efficiency-aware policy decides.
+/// The roulette a path plays where no efficiency-aware policy decides.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Roulette {
     /// Survive with probability `min(β, 0.95)`, `β` the throughput, from the third bounce.
@@ -61,6 +61,33 @@ pub enum Roulette {
     /// per sample, and keeps the guide's samples: classic roulette ends the paths a guide aims
     /// where its density is high, since their throughput `f/q` is low.
     Off,
+    /// Intel Open PGL's guided Russian roulette, as its pbrt-v4 integration plays it: from the
+    /// second vertex on, survive with [`guided_survival`] of the throughput arriving at the
+    /// vertex, the radiance the backend's cache estimates the vertex sends back along the path
+    /// (the adjoint), and the pixel's estimate. Classic where the pass has no pixel estimates
+    /// yet; no roulette where the backend keeps no cache (or it holds nothing there).
+    Guided,
+}
+
+/// Open PGL's guided Russian roulette (`openpgl::cpp::util::GuidedRussianRoulette`: the
+/// weight window of Vorba and Křivánek 2016, "Adjoint-driven Russian roulette and splitting in
+/// light transport simulation", without its splitting): the window's centre is the pixel's
+/// estimate over the adjoint, `C = Ĩ/A`, its lower bound `2C/(1 + s)` with `s = 5`, and the
+/// path survives with the mean of its throughput `β` over that bound, within `[0.1, 1]`. 1 where
+/// the adjoint is not positive and finite.
+pub fn guided_survival(beta: Vec3, adjoint: f32, pixel: f32) -> f32 {
+    const S: f32 = 5.0;
+    const MIN_SURVIVAL: f32 = 0.1;
+    if !(adjoint.is_finite() && adjoint > 0.0) {
+        return 1.0;
+    }
+    let lower = 2.0 * (pixel / adjoint) / (1.0 + S);
+    let mean = (beta.x + beta.y + beta.z) / 3.0;
+    let survival = if lower > 0.0 { mean / lower } else { 1.0 };
+    if survival.is_nan() {
+        return 1.0;
+    }
+    survival.clamp(MIN_SURVIVAL, 1.0)
 }
 
 /// How a render uses a guiding backend.
@@ -89,18 +116,37 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
     if a2 + b2 > 0.0 { a2 / (a2 + b2) } else { 0.0 }
 }
 
-/// How the paths of a pass decide how many continuations to trace from a vertex: by classic
-/// throughput roulette, or efficiency-aware roulette and splitting from the continuation
-/// estimates of a field ([`sdguide::Splitting`]).
+/// How the paths of a pass decide how many continuations to trace from a vertex: by a
+/// [`Roulette`], or efficiency-aware roulette and splitting from the continuation estimates of
+/// a field ([`sdguide::Splitting`]) where it has a policy.
+#[derive(Clone, Copy, Default)]
+pub struct Continuing<'a> {
+    /// The roulette where no splitting policy decides.
+    pub roulette: Roulette,
+    /// Efficiency-aware roulette and splitting.
+    pub continuations: Option<Continuations<'a>>,
+    /// Per pixel, the value its relative error is taken against, `sqrt(Ĩ² + ε)`, which the
+    /// efficiency-aware and guided roulettes weigh a path against (empty until the passes
+    /// give one).
+    pub pixels: &'a [f32],
+}
+
+impl Continuing<'_> {
+    /// Classic throughput roulette alone.
+    pub const CLASSIC: Continuing<'static> = Continuing {
+        roulette: Roulette::Classic,
+        continuations: None,
+        pixels: &[],
+    };
+}
+
+/// Efficiency-aware roulette and splitting from the continuation estimates of a field.
 #[derive(Clone, Copy)]
 pub struct Continuations<'a> {
     /// The field whose cells hold the continuation estimates (and learn them when `record`).
     pub field: &'a GuidingField,
-    /// This pass's policy; `None` until the image has estimates (classic roulette meanwhile).
+    /// This pass's policy; `None` until the image has estimates (the roulette meanwhile).
     pub splitting: Option<Splitting>,
-    /// Per pixel, the value its relative error is taken against, `sqrt(I² + ε)` (empty
-    /// without a policy).
-    pub pixels: &'a [f32],
     /// Whether every traced continuation is recorded into `field` (training passes).
     pub record: bool,
 }
@@ -119,12 +165,12 @@ pub struct PathSample {
     pub rays: u32,
 }
 
-/// A render thread's scratch: the path recorder, and how far each recorded direction reached
-/// (what Open PGL's parallax compensation needs), by vertex.
+/// A render thread's scratch: the path recorder, and each recorded vertex's segments (what
+/// Open PGL's parallax compensation and radiance cache need), by vertex.
 #[derive(Default)]
 pub struct Scratch {
     path: PathRecorder,
-    distances: Vec<f32>,
+    segments: Vec<Segment>,
 }
 
 /// The radiance arriving along `ray` (one path sample), guided when `guiding` is given, with
@@ -139,35 +185,39 @@ pub fn radiance<B: Backend>(
     path_sample(
         scene,
         guiding,
-        (Roulette::Classic, None),
+        (&Continuing::CLASSIC, 0),
         ray,
         (rng, &mut scratch),
     )
     .radiance
 }
 
-/// The radiance arriving along `ray` and its cost, guided when `guiding` is given, with
-/// roulette and splitting by `continuations` when given (`pixel`: the pixel's index into its
-/// `pixels`), else with `roulette`.
+/// The radiance arriving along `ray` and its cost, guided when `guiding` is given, the path
+/// continuing as `continuing` says (`pixel`: the pixel's index into its `pixels`).
 pub fn path_sample<B: Backend>(
     scene: &Scene,
     guiding: Option<Guiding<'_, B>>,
-    (roulette, continuations): (Roulette, Option<(&Continuations<'_>, usize)>),
+    (continuing, pixel): (&Continuing<'_>, usize),
     ray: Ray,
     (rng, scratch): (&mut Rng, &mut Scratch),
 ) -> PathSample {
-    let policy = continuations.and_then(|(c, pixel)| {
-        let splitting = c.splitting?;
-        Some((splitting, *c.pixels.get(pixel)?))
-    });
+    let estimate = continuing.pixels.get(pixel).copied();
+    let continuations = continuing.continuations;
+    let policy = continuations.and_then(|c| Some((c.splitting?, estimate?)));
+    // Guided roulette plays classic roulette until the passes give the pixel an estimate.
+    let roulette = match (continuing.roulette, estimate) {
+        (Roulette::Guided, None) => Roulette::Classic,
+        (roulette, _) => roulette,
+    };
     let camera = scratch.path.start();
-    scratch.distances.clear();
+    scratch.segments.clear();
     let mut path = Path {
         scene,
         guiding,
-        continuations: continuations.map(|(c, _)| *c),
+        continuations,
         policy,
         roulette,
+        estimate: estimate.unwrap_or(0.0),
         rng,
         scratch,
         rays: 0,
@@ -177,17 +227,18 @@ pub fn path_sample<B: Backend>(
     // GUIDING (4): the path is done; the recorder hands back every vertex's training sample
     // (the radiance that arrived along its direction, its second moment without roulette,
     // the mixture terms) and its continuation.
-    let Scratch { path, distances } = scratch;
+    let Scratch { path, segments } = scratch;
     let radiance = path.finish();
     let samples = guiding.filter(|g| g.record);
-    let continuations = continuations.filter(|(c, _)| c.record);
+    let continuations = continuations.filter(|c| c.record);
     if samples.is_some() || continuations.is_some() {
         for r in path.records() {
             if let Some(g) = samples {
-                let distance = distances.get(r.id.index()).copied();
-                g.field.record(&r.sample, distance.unwrap_or(f32::INFINITY));
+                let segment = segments.get(r.id.index()).copied();
+                g.field
+                    .record(&r.sample, segment.unwrap_or(Segment::UNKNOWN));
             }
-            if let Some((c, _)) = continuations {
+            if let Some(c) = continuations {
                 c.field.record_continuation(&r.continuation);
             }
         }
@@ -237,6 +288,8 @@ struct Path<'s, 'a, B: Backend> {
     policy: Option<(Splitting, f32)>,
     /// The roulette where no policy decides.
     roulette: Roulette,
+    /// The pixel's `sqrt(Ĩ² + ε)` (0 without one).
+    estimate: f32,
     rng: &'s mut Rng,
     scratch: &'s mut Scratch,
     rays: u32,
@@ -462,6 +515,7 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             return;
         };
         let f = sampler.bsdf_cos(s.direction);
+        let arriving = beta;
         let beta = beta * (f / s.pdf.mixture);
         // GUIDING (3): push the vertex — its position and normal (or that it lies in a
         // medium), the direction, `f·cos`, the mixture pdf and the two techniques' pdfs.
@@ -472,15 +526,18 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             None => vertex.in_volume(),
         };
         let v = self.scratch.path.push(owner, vertex);
-        // Classic roulette decides after the direction is drawn, so a vertex it ends still
-        // records its direction (with zero radiance): the recorded radiance, 1/survive times
-        // what arrived or nothing, is unbiased whatever the direction.
-        let survive =
-            if classic && self.roulette == Roulette::Classic && depth + 1 >= ROULETTE_DEPTH {
-                beta.max_element().min(0.95)
-            } else {
-                1.0
-            };
+        // Roulette decides after the direction is drawn, so a vertex it ends still records its
+        // direction (with zero radiance): the recorded radiance, 1/survive times what arrived
+        // or nothing, is unbiased whatever the direction.
+        let survive = match self.roulette {
+            _ if !classic => 1.0,
+            Roulette::Classic if depth + 1 >= ROULETTE_DEPTH => beta.max_element().min(0.95),
+            // The throughput arriving at the vertex, against what it sends back.
+            Roulette::Guided if depth >= 1 => sampler.outgoing_radiance().map_or(1.0, |adjoint| {
+                guided_survival(arriving, adjoint, self.estimate)
+            }),
+            _ => 1.0,
+        };
         // A guide direction below the surface (f = 0) ends the continuation, and is recorded
         // too, with zero radiance: the field learns that nothing this vertex can use comes
         // from there. Not recording it would leave those cells without samples, and a cell
@@ -501,10 +558,35 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             Some((at.position, s.pdf.mixture)),
             v,
         );
-        let distances = &mut self.scratch.distances;
-        if distances.len() <= v.index() {
-            distances.resize(v.index() + 1, f32::INFINITY);
+        let segments = &mut self.scratch.segments;
+        if segments.len() <= v.index() {
+            segments.resize(v.index() + 1, Segment::UNKNOWN);
         }
-        distances[v.index()] = distance;
+        segments[v.index()] = Segment {
+            distance,
+            outgoing: sampler.outgoing(),
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn guided_survival_is_open_pgls_weight_window() {
+        // β̄ = 0.2, A = 0.5, Ĩ = 1: the window's lower bound is 2·(1/0.5)/6 = 2/3, and the
+        // path survives with 0.2/(2/3) = 0.3.
+        let beta = Vec3::new(0.1, 0.2, 0.3);
+        assert!((guided_survival(beta, 0.5, 1.0) - 0.3).abs() < 1e-6);
+        // Within [0.1, 1].
+        assert_eq!(guided_survival(beta, 1e-6, 1.0), 0.1);
+        assert_eq!(guided_survival(Vec3::splat(5.0), 0.5, 1.0), 1.0);
+        // No adjoint, or no pixel estimate: no roulette.
+        for adjoint in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert_eq!(guided_survival(beta, adjoint, 1.0), 1.0);
+        }
+        assert_eq!(guided_survival(beta, 0.5, 0.0), 1.0);
+        assert_eq!(guided_survival(Vec3::splat(f32::NAN), 0.5, 1.0), 1.0);
     }
 }

@@ -5,8 +5,8 @@
 use crate::backend::{Backend, Unguided};
 use crate::image::Image;
 use crate::integrator::{Guiding, Roulette};
-use crate::passes::{POLICY_SPP, PassImage, combine, splitting};
-use crate::render::{TrainingPass, continuations_of, render_pass_image, training_pass_with};
+use crate::passes::{POLICY_SPP, PassImage, combine};
+use crate::render::{TrainingPass, continuing, render_pass_image, training_pass_with};
 use crate::scene::Scene;
 use glam::Vec3;
 use sdguide::{Aabb, GuidingConfig, GuidingField, LeafRule, SplittingMode};
@@ -30,13 +30,17 @@ pub enum Rrs {
     Ears,
     /// No roulette: paths go on to the longest path's depth.
     None,
+    /// Intel Open PGL's guided Russian roulette, from its radiance cache's adjoint and the
+    /// image's pixel estimates ([`Roulette::Guided`]): the peer's own; sdguide's methods and
+    /// unguided ones have no radiance cache and do not run it.
+    Guided,
 }
 
 impl Rrs {
     /// The library's splitting mode (`None`: none, [`Rrs::roulette`] decides).
     pub fn mode(self) -> Option<SplittingMode> {
         match self {
-            Rrs::Classic | Rrs::None => None,
+            Rrs::Classic | Rrs::None | Rrs::Guided => None,
             Rrs::Ear => Some(SplittingMode::Roulette),
             Rrs::Ears => Some(SplittingMode::RouletteAndSplitting),
         }
@@ -47,6 +51,7 @@ impl Rrs {
     pub fn roulette(self) -> Roulette {
         match self {
             Rrs::None => Roulette::Off,
+            Rrs::Guided => Roulette::Guided,
             _ => Roulette::Classic,
         }
     }
@@ -58,6 +63,7 @@ impl Rrs {
             Rrs::Ear => "-ear",
             Rrs::Ears => "-ears",
             Rrs::None => "-no-rr",
+            Rrs::Guided => "-grr",
         }
     }
 }
@@ -177,6 +183,7 @@ pub struct Training<'a> {
     /// Roulette and splitting. With splitting (`ear`, `ears`), unguided methods too train a
     /// field (which learns only the continuation estimates: the guide is never drawn), sdguide's
     /// guided methods learn them in the field they train, and the peer plays classic roulette.
+    /// Guided roulette (`grr`) is the peer's alone.
     pub rrs: Rrs,
 }
 
@@ -200,6 +207,9 @@ pub fn render(
 ) -> Result<Outcome, String> {
     let start = Instant::now();
     let rrs = training.rrs;
+    if rrs == Rrs::Guided && !matches!(method, Method::OpenPgl { .. }) {
+        return Err("guided roulette (`grr`) is Open PGL's: it needs its radiance cache".into());
+    }
     let mut schedule = Schedule {
         start,
         budget,
@@ -248,7 +258,7 @@ pub fn render(
             )
         }
         Method::OpenPgl { cosine_product } => {
-            // The peer has no splitting: it plays classic roulette.
+            // The peer has no splitting: it plays classic roulette instead, or its own.
             schedule.mode = None;
             (peer(scene, &schedule, cosine_product, progress)?, None)
         }
@@ -374,8 +384,7 @@ impl Schedule {
                 guide_probability: self.guide_probability,
                 roulette: self.roulette,
             };
-            let rrs = self.mode.map(|mode| (mode, images.as_slice()));
-            let image = training_pass_with(scene, field, &pass, rrs);
+            let image = training_pass_with(scene, field, &pass, (self.mode, images.as_slice()));
             images.push(image);
             spp_total += spp;
             last = began.elapsed();
@@ -447,20 +456,12 @@ impl Schedule {
             // one thread, which after every 1-spp pass took 2.0 s of an unguided `glossy-box`
             // render's 14 s final render, and later samples move them less.
             if pass == 0 || pass.is_power_of_two() {
-                estimates = self.mode.and_then(|mode| {
-                    let all: Vec<&PassImage> = passes.iter().chain([&image]).collect();
-                    splitting(&all, mode)
-                });
+                let all: Vec<&PassImage> = passes.iter().chain([&image]).collect();
+                estimates = crate::render::estimates(&all, self.mode, self.roulette);
             }
-            let continuations =
-                continuation_field.map(|f| continuations_of(f, estimates.as_ref(), false));
-            render_pass_image(
-                scene,
-                guiding,
-                (self.roulette, continuations.as_ref()),
-                &mut image,
-                (1, seed, pass),
-            );
+            let continuing =
+                continuing(self.roulette, continuation_field, estimates.as_ref(), false);
+            render_pass_image(scene, guiding, &continuing, &mut image, (1, seed, pass));
             progress("rendering", self.fraction(image.spp), image.spp);
         }
         let spp = image.spp;

@@ -4,7 +4,7 @@
 
 use crate::backend::Backend;
 use crate::image::Image;
-use crate::integrator::{Continuations, Guiding, Roulette, Scratch, path_sample};
+use crate::integrator::{Continuations, Continuing, Guiding, Roulette, Scratch, path_sample};
 use crate::material::luminance;
 use crate::passes::{PassImage, PixelEstimates, splitting};
 use crate::rng::Rng;
@@ -33,7 +33,7 @@ pub fn render_pass<B: Backend>(
     render_samples(
         scene,
         guiding,
-        (Roulette::Classic, None),
+        &Continuing::CLASSIC,
         size,
         (spp, seed, pass),
         |pixel, l, _| {
@@ -43,12 +43,11 @@ pub fn render_pass<B: Backend>(
 }
 
 /// [`render_pass`] into a [`PassImage`], which also keeps each pixel's squared luminance (for
-/// the pass's variance) and the rays traced; with roulette and splitting by `continuations`
-/// when given.
+/// the pass's variance) and the rays traced; the paths continuing as `continuing` says.
 pub fn render_pass_image<B: Backend>(
     scene: &Scene,
     guiding: Option<Guiding<'_, B>>,
-    continuations: (Roulette, Option<&Continuations<'_>>),
+    continuing: &Continuing<'_>,
     image: &mut PassImage,
     (spp, seed, pass): (u32, u64, u32),
 ) {
@@ -56,7 +55,7 @@ pub fn render_pass_image<B: Backend>(
     let rays = render_samples(
         scene,
         guiding,
-        continuations,
+        continuing,
         size,
         (spp, seed, pass),
         |pixel, l, squares| {
@@ -74,7 +73,7 @@ pub fn render_pass_image<B: Backend>(
 fn render_samples<B: Backend>(
     scene: &Scene,
     guiding: Option<Guiding<'_, B>>,
-    (roulette, continuations): (Roulette, Option<&Continuations<'_>>),
+    continuing: &Continuing<'_>,
     (width, height): (usize, usize),
     (spp, seed, pass): (u32, u64, u32),
     mut add: impl FnMut(usize, Vec3, f64),
@@ -106,7 +105,7 @@ fn render_samples<B: Backend>(
                         let sample = path_sample(
                             scene,
                             guiding,
-                            (roulette, continuations.map(|c| (c, index))),
+                            (continuing, index),
                             ray,
                             (&mut rng, &mut scratch),
                         );
@@ -162,7 +161,7 @@ pub fn training_pass<B: Backend>(
         guide_probability,
         roulette: Roulette::Classic,
     };
-    training_pass_with(scene, field, &pass, None)
+    training_pass_with(scene, field, &pass, (None, &[]))
 }
 
 /// What a training pass renders.
@@ -182,14 +181,15 @@ pub struct TrainingPass {
     pub roulette: Roulette,
 }
 
-/// [`training_pass`], and with `rrs` — a splitting mode and the render's passes so far — with
-/// efficiency-aware roulette and splitting, every traced continuation recorded into the field
-/// (an sdguide field; the peer's paths keep classic roulette).
+/// [`training_pass`] given the render's passes so far: with a splitting mode, efficiency-aware
+/// roulette and splitting, every traced continuation recorded into the field (an sdguide
+/// field; the peer's paths play their roulette); under guided roulette, the passes' pixel
+/// estimates.
 pub fn training_pass_with<B: Backend>(
     scene: &Scene,
     field: &mut B,
     pass: &TrainingPass,
-    rrs: Option<(SplittingMode, &[PassImage])>,
+    (mode, passes): (Option<SplittingMode>, &[PassImage]),
 ) -> PassImage {
     let guiding = Guiding {
         field: &*field,
@@ -197,16 +197,14 @@ pub fn training_pass_with<B: Backend>(
         guide_probability: pass.guide_probability,
     };
     let mut image = PassImage::new(pass.size.0, pass.size.1);
-    let estimates =
-        rrs.and_then(|(mode, passes)| splitting(&passes.iter().collect::<Vec<_>>(), mode));
-    let continuations = match (rrs, field.as_field()) {
-        (Some(_), Some(f)) => Some(continuations_of(f, estimates.as_ref(), true)),
-        _ => None,
-    };
+    let passes: Vec<&PassImage> = passes.iter().collect();
+    let estimates = estimates(&passes, mode, pass.roulette);
+    let continuation_field = mode.and(field.as_field());
+    let continuing = continuing(pass.roulette, continuation_field, estimates.as_ref(), true);
     render_pass_image(
         scene,
         Some(guiding),
-        (pass.roulette, continuations.as_ref()),
+        &continuing,
         &mut image,
         (pass.spp, pass.seed, TRAINING_PASS | pass.iteration),
     );
@@ -214,16 +212,36 @@ pub fn training_pass_with<B: Backend>(
     image
 }
 
-/// The continuation policy of a pass: `field`'s estimates, and the image's when there are any.
-pub(crate) fn continuations_of<'a>(
-    field: &'a GuidingField,
+/// What the passes so far say about the image, where a pass's paths need it: for roulette and
+/// splitting by `mode`, or for guided roulette (then the policy is roulette's, unused).
+pub(crate) fn estimates(
+    passes: &[&PassImage],
+    mode: Option<SplittingMode>,
+    roulette: Roulette,
+) -> Option<PixelEstimates> {
+    let mode = match (mode, roulette) {
+        (Some(mode), _) => mode,
+        (None, Roulette::Guided) => SplittingMode::Roulette,
+        (None, _) => return None,
+    };
+    splitting(passes, mode)
+}
+
+/// How a pass's paths continue: by `roulette`, and with efficiency-aware roulette and splitting
+/// by `field`'s continuation estimates where there is a field and the image's estimates.
+pub(crate) fn continuing<'a>(
+    roulette: Roulette,
+    field: Option<&'a GuidingField>,
     estimates: Option<&'a PixelEstimates>,
     record: bool,
-) -> Continuations<'a> {
-    Continuations {
-        field,
-        splitting: estimates.map(|e| e.splitting),
+) -> Continuing<'a> {
+    Continuing {
+        roulette,
+        continuations: field.map(|field| Continuations {
+            field,
+            splitting: estimates.map(|e| e.splitting),
+            record,
+        }),
         pixels: estimates.map_or(&[], |e| &e.pixels),
-        record,
     }
 }

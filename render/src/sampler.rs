@@ -129,6 +129,21 @@ impl<'a, B: Backend + 'a> VertexSampler<'a, B> {
         }
     }
 
+    /// The unit direction back along the path, toward the camera: `wo` at a surface, against
+    /// the direction of travel in a medium.
+    pub fn outgoing(&self) -> Vec3 {
+        match self.scatterer {
+            Scatterer::Surface { frame, wo, .. } => frame.to_world(wo),
+            Scatterer::Medium { travel, .. } => -travel,
+        }
+    }
+
+    /// The radiance the guide's cache estimates the vertex sends back along the path
+    /// (luminance), where the backend keeps one: the adjoint of guided Russian roulette.
+    pub fn outgoing_radiance(&self) -> Option<f32> {
+        self.guide.as_ref()?.outgoing_radiance(self.outgoing())
+    }
+
     /// The same strategy with the guide drawn with probability `a` instead of the learned one.
     pub fn with_guide_probability(self, a: f32) -> Self {
         VertexSampler { a, ..self }

@@ -10,7 +10,7 @@
 use sdguide::{GuidingConfig, GuidingField, LeafRule, Splitting, SplittingMode};
 use sdguide_render::backend::{Backend, Unguided};
 use sdguide_render::image::Image;
-use sdguide_render::integrator::{Continuations, Guiding, Roulette};
+use sdguide_render::integrator::{Continuations, Continuing, Guiding, Roulette};
 use sdguide_render::passes::{PassImage, splitting};
 use sdguide_render::render::{render_pass, render_pass_image};
 use sdguide_render::scene::Scene;
@@ -142,14 +142,18 @@ fn furnace_without_roulette_converges_guided_and_not() {
         let mut rays = Vec::new();
         for roulette in [Roulette::Classic, Roulette::Off] {
             let mut image = PassImage::new(SIZE.0, SIZE.1);
-            render_pass_image(&scene, guiding, (roulette, None), &mut image, (SPP, 11, 0));
+            let continuing = Continuing {
+                roulette,
+                ..Continuing::CLASSIC
+            };
+            render_pass_image(&scene, guiding, &continuing, &mut image, (SPP, 11, 0));
             assert_converges(&image.mean(), &format!("{name}, {roulette:?}"));
             // Without light samples a path's rays are its intersections: in the closed
             // furnace without roulette a path traces its camera ray and 10 bounces, with it
             // fewer. Without roulette a path ends early only at a direction with f = 0 (at the
             // horizon, or below the surface for the guide times the cosine), which is rare.
             let mut image = PassImage::new(SIZE.0, SIZE.1);
-            render_pass_image(&dark, guiding, (roulette, None), &mut image, (SPP, 12, 0));
+            render_pass_image(&dark, guiding, &continuing, &mut image, (SPP, 12, 0));
             rays.push(image.rays / (SIZE.0 * SIZE.1) as f64 / f64::from(SPP));
         }
         assert!((10.99..=11.0).contains(&rays[1]), "{name}: {rays:?}");
@@ -245,6 +249,60 @@ fn open_pgl_guided_furnace_converges_to_the_analytic_radiance() {
     }
 }
 
+/// Open PGL's guided Russian roulette, from its radiance cache and the training passes' pixel
+/// estimates, keeps the furnace unbiased, in training and in the final render, and ends paths
+/// (in the furnace a vertex's adjoint is `a·L` and the pixel `L`, so a path survives its second
+/// vertex with about `3·a·β = 3a²`, `a` = 0.3).
+#[cfg(feature = "openpgl")]
+#[test]
+fn open_pgl_guided_roulette_keeps_the_furnace_unbiased() {
+    use sdguide_render::method::field_bounds;
+    use sdguide_render::openpgl;
+    use sdguide_render::render::{TrainingPass, training_pass_with};
+    let scene = furnace(ALBEDO, EMISSION);
+    let mut guide = openpgl::Guide::new(field_bounds(&scene), true, 2).unwrap();
+    let mut passes: Vec<PassImage> = Vec::new();
+    for iteration in 0..5 {
+        let pass = TrainingPass {
+            size: SIZE,
+            spp: 1 << iteration,
+            seed: 5,
+            iteration,
+            guide_probability: None,
+            roulette: Roulette::Guided,
+        };
+        let image = training_pass_with(&scene, &mut guide, &pass, (None, &passes[..]));
+        // Every training pass is an unbiased estimate of the furnace.
+        let (mean, error) = common::mean_and_error(&image.mean());
+        let expected = f64::from(EMISSION / (1.0 - ALBEDO));
+        assert!(
+            (mean - expected).abs() < 4.0 * error,
+            "training pass {iteration}: {mean} vs {expected} ± {error}"
+        );
+        passes.push(image);
+    }
+    let refs: Vec<&PassImage> = passes.iter().collect();
+    let estimates = splitting(&refs, SplittingMode::Roulette).expect("passes of 4 spp and more");
+    let guiding = Some(Guiding {
+        field: &guide,
+        record: false,
+        guide_probability: None,
+    });
+    let mut rays = Vec::new();
+    for roulette in [Roulette::Guided, Roulette::Off] {
+        let continuing = Continuing {
+            roulette,
+            continuations: None,
+            pixels: &estimates.pixels,
+        };
+        let mut image = PassImage::new(SIZE.0, SIZE.1);
+        render_pass_image(&scene, guiding, &continuing, &mut image, (SPP, 9, 0));
+        assert_converges(&image.mean(), &format!("Open PGL, {roulette:?}"));
+        rays.push(image.rays);
+    }
+    assert!(rays[0] < 0.5 * rays[1], "{rays:?}");
+}
+
 /// Roulette and splitting by the field's continuation estimates keep the furnace unbiased,
 /// guided and not: with the policy the training passes give, forced to split wherever the
 /// demo lets a vertex split (to the ray bound of a camera sample), and forced to kill at a
@@ -280,11 +338,14 @@ fn furnace_with_roulette_and_splitting_converges() {
         ("splitting", forced(1e-9, 0.05), None),
         ("killing", forced(1e9, 0.5), None),
     ] {
-        let continuations = Continuations {
-            field: &field,
-            splitting: Some(policy),
+        let continuing = Continuing {
+            roulette: Roulette::Classic,
+            continuations: Some(Continuations {
+                field: &field,
+                splitting: Some(policy),
+                record: false,
+            }),
             pixels: &estimates.pixels,
-            record: false,
         };
         let guiding = Guiding {
             field: &field,
@@ -292,13 +353,7 @@ fn furnace_with_roulette_and_splitting_converges() {
             guide_probability,
         };
         let mut image = PassImage::new(SIZE.0, SIZE.1);
-        render_pass_image(
-            &scene,
-            Some(guiding),
-            (Roulette::Classic, Some(&continuations)),
-            &mut image,
-            (SPP, 7, 0),
-        );
+        render_pass_image(&scene, Some(guiding), &continuing, &mut image, (SPP, 7, 0));
         assert_converges(&image.mean(), name);
         rays.push(image.rays);
     }

@@ -23,24 +23,29 @@ pub struct Box3f {
     pub upper: Vec3f,
 }
 
-/// `PGLSampleData` without the radiance-cache fields (the build leaves them off).
+/// `PGLSampleData` with the radiance-cache fields (the build turns them on; no compression).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SampleData {
     pub position: Vec3f,
     pub direction: Vec3f,
     pub weight: f32,
+    pub radiance_in: Vec3f,
+    pub radiance_in_mis_weight: f32,
     pub pdf: f32,
     pub distance: f32,
     pub flags: u32,
+    pub direction_out: Vec3f,
+    pub radiance_out: Vec3f,
 }
 
-/// `PGLZeroValueSampleData`.
+/// `PGLZeroValueSampleData` with the radiance-cache field.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ZeroValueSampleData {
     pub position: Vec3f,
     pub direction: Vec3f,
+    pub direction_out: Vec3f,
     pub volume: bool,
 }
 
@@ -114,6 +119,14 @@ unsafe extern "C" {
     pub fn pglVolumeSamplingDistributionSample(distribution: *mut c_void, sample: Vec2f) -> Vec3f;
     pub fn pglVolumeSamplingDistributionPDF(distribution: *mut c_void, direction: Vec3f) -> f32;
     pub fn pglSurfaceSamplingDistributionPDF(distribution: *mut c_void, direction: Vec3f) -> f32;
+    pub fn pglSurfaceSamplingDistributionOutgoingRadiance(
+        distribution: *mut c_void,
+        direction: Vec3f,
+    ) -> Vec3f;
+    pub fn pglVolumeSamplingDistributionOutgoingRadiance(
+        distribution: *mut c_void,
+        direction: Vec3f,
+    ) -> Vec3f;
     pub fn pglNewSampleStorage() -> *mut c_void;
     pub fn pglReleaseSampleStorage(storage: *mut c_void);
     pub fn pglSampleStorageAddSamples(

@@ -12,7 +12,7 @@
 //! so a vertex costs an `Init`, not an allocation.
 #![allow(unsafe_code)]
 
-use crate::backend::{Backend, VertexGuide};
+use crate::backend::{Backend, Segment, VertexGuide};
 use glam::{Vec2, Vec3};
 use sdguide::Aabb;
 use std::cell::RefCell;
@@ -35,7 +35,8 @@ fn vec3f(v: Vec3) -> ffi::Vec3f {
 }
 
 /// One recorded vertex: the radiance that arrived along `direction` at `position`, drawn with
-/// pdf `pdf`, from a source `distance` away (Open PGL's parallax compensation uses it).
+/// pdf `pdf`, from a source `distance` away (Open PGL's parallax compensation uses it), and what
+/// the vertex reflected toward `outgoing` (its radiance cache learns it).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Record {
     /// Where the path scattered.
@@ -48,6 +49,11 @@ pub struct Record {
     pub pdf: f32,
     /// Distance to the next vertex along `direction`.
     pub distance: f32,
+    /// The unit direction back along the path, toward the camera.
+    pub outgoing: Vec3,
+    /// The luminance of what the vertex reflected toward `outgoing` through this sample: the
+    /// arrived radiance times `f·cos`, over `pdf`.
+    pub reflected: f32,
     /// Whether the vertex lies inside a medium (it trains Open PGL's volume field).
     pub volume: bool,
 }
@@ -161,14 +167,22 @@ impl Guide {
         let (mut n, mut z) = (0, 0);
         for v in vertices.iter().take(MAX) {
             let valid = v.pdf.is_finite() && v.pdf > 0.0 && v.radiance.is_finite();
-            if !valid || v.radiance < 0.0 || !v.position.is_finite() || !v.direction.is_finite() {
+            let finite = [v.position, v.direction, v.outgoing]
+                .iter()
+                .all(|x| x.is_finite());
+            let reflected = v.reflected.is_finite() && v.reflected >= 0.0;
+            if !valid || v.radiance < 0.0 || !finite || !reflected {
                 continue;
             }
             if v.radiance > 0.0 && v.distance.is_finite() && v.distance > 0.0 {
+                let grey = |l: f32| vec3f(Vec3::splat(l));
                 samples[n] = ffi::SampleData {
                     position: vec3f(v.position),
                     direction: vec3f(v.direction),
                     weight: v.radiance / v.pdf,
+                    // The recorded radiance carries its MIS weights already.
+                    radiance_in: grey(v.radiance),
+                    radiance_in_mis_weight: 1.0,
                     pdf: v.pdf,
                     distance: v.distance,
                     flags: if v.volume {
@@ -176,12 +190,15 @@ impl Guide {
                     } else {
                         0
                     },
+                    direction_out: vec3f(v.outgoing),
+                    radiance_out: grey(v.reflected),
                 };
                 n += 1;
             } else if v.radiance == 0.0 {
                 zeros[z] = ffi::ZeroValueSampleData {
                     position: vec3f(v.position),
                     direction: vec3f(v.direction),
+                    direction_out: vec3f(v.outgoing),
                     volume: v.volume,
                 };
                 z += 1;
@@ -410,6 +427,21 @@ impl Distribution {
             }
         }
     }
+
+    /// The luminance of the radiance the region's cache estimates leaves it toward `direction`
+    /// (Open PGL's `OutgoingRadiance`: a histogram over outgoing directions of what its samples
+    /// reflected).
+    pub fn outgoing_radiance(&self, direction: Vec3) -> f32 {
+        let d = vec3f(direction);
+        // SAFETY: as in `sample`.
+        let l = unsafe {
+            match self.kind() {
+                Kind::Surface => ffi::pglSurfaceSamplingDistributionOutgoingRadiance(self.ptr(), d),
+                Kind::Volume => ffi::pglVolumeSamplingDistributionOutgoingRadiance(self.ptr(), d),
+            }
+        };
+        crate::material::luminance(Vec3::new(l.x, l.y, l.z))
+    }
 }
 
 impl Drop for Distribution {
@@ -440,7 +472,8 @@ impl Backend for Guide {
         true
     }
 
-    fn record(&self, sample: &sdguide::Sample, distance: f32) {
+    fn record(&self, sample: &sdguide::Sample, segment: Segment) {
+        let reflected = sample.mixture.map_or(0.0, |m| m.integrand / sample.pdf);
         Guide::record(
             self,
             &[Record {
@@ -448,7 +481,9 @@ impl Backend for Guide {
                 direction: sample.direction,
                 radiance: sample.value,
                 pdf: sample.pdf,
-                distance,
+                distance: segment.distance,
+                outgoing: segment.outgoing,
+                reflected,
                 volume: sample.volume,
             }],
         );
@@ -470,6 +505,10 @@ impl VertexGuide for Distribution {
 
     fn guide_probability(&self) -> f32 {
         PEER_GUIDE_PROBABILITY
+    }
+
+    fn outgoing_radiance(&self, direction: Vec3) -> Option<f32> {
+        Some(Distribution::outgoing_radiance(self, direction))
     }
 }
 

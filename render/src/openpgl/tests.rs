@@ -16,6 +16,8 @@ fn records_around(axis: Vec3, volume: bool) -> Vec<Record> {
                 radiance: 1.0,
                 pdf: 1.0,
                 distance: 1.0,
+                outgoing: Vec3::Z,
+                reflected: 0.5,
                 volume,
             }
         })
@@ -29,6 +31,8 @@ fn record(radiance: f32, pdf: f32, distance: f32) -> Record {
         radiance,
         pdf,
         distance,
+        outgoing: Vec3::Z,
+        reflected: radiance,
         volume: false,
     }
 }
@@ -46,8 +50,43 @@ fn record_keeps_valid_samples_and_drops_what_open_pgl_would_assert_on() {
         record(-1.0, 0.5, 2.0),
         record(1.0, 0.5, f32::INFINITY),
         record(2.0, 0.25, 1.0),
+        Record {
+            reflected: f32::NAN,
+            ..record(1.0, 0.5, 2.0)
+        },
+        Record {
+            outgoing: Vec3::NAN,
+            ..record(1.0, 0.5, 2.0)
+        },
     ]);
     assert_eq!(guide.pending_samples(), 2);
+}
+
+#[test]
+fn the_radiance_cache_learns_what_each_region_reflects_toward_each_direction() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let mut guide = Guide::new(bounds, false, 1).unwrap();
+    // Every vertex reflects 0.5 toward +z and nothing toward −z: the histogram of outgoing
+    // radiance (a running mean per bin of outgoing directions) gives back each.
+    let mut records = records_around(Vec3::Z, false);
+    let dark: Vec<Record> = records
+        .iter()
+        .map(|r| Record {
+            radiance: 0.0,
+            outgoing: -Vec3::Z,
+            reflected: 0.0,
+            ..*r
+        })
+        .collect();
+    records.extend(dark);
+    for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+        guide.record(chunk);
+    }
+    guide.update();
+    let d = guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).unwrap();
+    let (up, down) = (d.outgoing_radiance(Vec3::Z), d.outgoing_radiance(-Vec3::Z));
+    assert!((up - 0.5).abs() < 1e-4, "toward +z: {up}");
+    assert_eq!(down, 0.0, "toward −z");
 }
 
 #[test]

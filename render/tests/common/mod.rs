@@ -56,7 +56,7 @@ pub fn trained_with_config(
             guide_probability: None,
             roulette,
         };
-        let image = training_pass_with(scene, &mut field, &pass, mode.map(|m| (m, &passes[..])));
+        let image = training_pass_with(scene, &mut field, &pass, (mode, &passes[..]));
         passes.push(image);
     }
     (field, passes)

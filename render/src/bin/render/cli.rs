@@ -71,14 +71,14 @@ struct Cli {
     /// `c`: spatial leaves split past `c·sqrt(2^k)` samples in iteration `k`.
     #[arg(long, default_value_t = GuidingConfig::default().spatial_threshold)]
     spatial_threshold: f32,
-    /// The Open PGL methods to run (default: both with the `openpgl` feature, else none).
+    /// The Open PGL methods to run (default: `cos` with the `openpgl` feature, else none).
     #[arg(long, value_enum)]
     peer: Option<PeerArg>,
     /// Next-event estimation (light sampling at every vertex).
     #[arg(long, value_enum, default_value = "on")]
     nee: OnOff,
     /// Roulette and splitting variants, each run with every method (the peer: those without
-    /// splitting).
+    /// splitting; `grr`, Open PGL's guided roulette, the peer only).
     #[arg(long, value_enum, value_delimiter = ',')]
     rrs: Option<Vec<RrsArg>>,
     /// Render the scene's reference instead (with `--spp` and `--time 0`).
@@ -142,7 +142,8 @@ impl Args {
     /// ratio): the recommended comparison — unguided with classic roulette, unguided with
     /// efficiency-aware roulette and splitting, and guided by the default rule with them —
     /// or every rule with every roulette asked for, beside unguided with each; then the peer's
-    /// methods, each with the roulettes asked for that do not split (classic if none such is).
+    /// methods, each with the roulettes asked for that do not split (classic if none such is;
+    /// in the recommended comparison, classic and its own guided roulette).
     pub fn methods(&self) -> Vec<(Method, Rrs)> {
         let mut methods: Vec<(Method, Rrs)> = if self.recommended {
             vec![
@@ -151,23 +152,34 @@ impl Args {
                 (Method::Guided(GuidingConfig::default().rule), Rrs::Ears),
             ]
         } else {
-            let unguided = self.rrs.iter().map(|&rrs| (Method::Unguided, rrs));
+            // Guided roulette is the peer's alone.
+            let own: Vec<Rrs> = self
+                .rrs
+                .iter()
+                .copied()
+                .filter(|&r| r != Rrs::Guided)
+                .collect();
+            let unguided = own.iter().map(|&rrs| (Method::Unguided, rrs));
             let guided = self
                 .rules
                 .iter()
-                .flat_map(|&rule| self.rrs.iter().map(move |&rrs| (Method::Guided(rule), rrs)));
+                .flat_map(|&rule| own.iter().map(move |&rrs| (Method::Guided(rule), rrs)));
             unguided.chain(guided).collect()
         };
         if !methods.contains(&(Method::Unguided, Rrs::Classic)) {
             methods.insert(0, (Method::Unguided, Rrs::Classic));
         }
         methods.sort_by_key(|&(m, r)| (m != Method::Unguided || r != Rrs::Classic) as u8);
-        let mut roulettes: Vec<Rrs> = self
-            .rrs
-            .iter()
-            .copied()
-            .filter(|r| r.mode().is_none())
-            .collect();
+        // The peer at its best beside its classic roulette in the recommended comparison.
+        let mut roulettes: Vec<Rrs> = if self.recommended {
+            vec![Rrs::Classic, Rrs::Guided]
+        } else {
+            self.rrs
+                .iter()
+                .copied()
+                .filter(|r| r.mode().is_none())
+                .collect()
+        };
         if roulettes.is_empty() {
             roulettes.push(Rrs::Classic);
         }
@@ -206,7 +218,7 @@ pub fn parse() -> Result<Args, String> {
         Err(e) => return Err(e.to_string().trim_end().to_string()),
     };
     let peers = match cli.peer {
-        None if cfg!(feature = "openpgl") => vec![false, true],
+        None if cfg!(feature = "openpgl") => vec![true],
         None | Some(PeerArg::None) => Vec::new(),
         Some(PeerArg::Plain) => vec![false],
         Some(PeerArg::Cos) => vec![true],
@@ -277,6 +289,7 @@ pub fn parse() -> Result<Args, String> {
             RrsArg::Ear => Rrs::Ear,
             RrsArg::Ears => Rrs::Ears,
             RrsArg::None => Rrs::None,
+            RrsArg::Grr => Rrs::Guided,
         })
         .collect(),
     })
@@ -396,4 +409,5 @@ enum RrsArg {
     Ear,
     Ears,
     None,
+    Grr,
 }

@@ -148,10 +148,13 @@ pub fn cost_report(
 const PEER_SETTINGS: &str = concat!(
     "Peer: Intel Open PGL ",
     env!("OPENPGL_VERSION"),
-    ", its default field (a kd-tree of parallax-aware VMMs, at most 32000 samples per leaf, \
-     deterministic), the surface sampling distribution at every vertex (`openpgl-cos`: with its \
-     cosine product), guide probability ½ unless fixed, the same mixture, MIS, recorded \
-     radiance and training schedule as sdguide's methods."
+    " built with its radiance caches, its default field (a kd-tree of parallax-aware VMMs, at \
+     most 32000 samples per leaf, deterministic), the surface sampling distribution at every \
+     vertex (`openpgl-cos`: with its cosine product), guide probability ½ unless fixed, the \
+     same mixture, MIS, recorded radiance and training schedule as sdguide's methods. `-grr`: \
+     its guided Russian roulette from the second vertex, the adjoint from its radiance cache \
+     and the pixel estimate from the passes so far (the demo's, as sdguide's roulette gets it: \
+     Open PGL's image-space guiding buffer needs Open Image Denoise, not built here)."
 );
 #[cfg(not(feature = "openpgl"))]
 const PEER_SETTINGS: &str = "";
