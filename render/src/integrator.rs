@@ -526,6 +526,16 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             None => vertex.in_volume(),
         };
         let v = self.scratch.path.push(owner, vertex);
+        // Its segments, for the backends that record them: the direction back along the path
+        // now (a vertex that ends below holds it too), how far its ray reached once traced.
+        let segments = &mut self.scratch.segments;
+        if segments.len() <= v.index() {
+            segments.resize(v.index() + 1, Segment::UNKNOWN);
+        }
+        segments[v.index()] = Segment {
+            distance: f32::INFINITY,
+            outgoing: sampler.outgoing(),
+        };
         // Roulette decides after the direction is drawn, so a vertex it ends still records its
         // direction (with zero radiance): the recorded radiance, 1/survive times what arrived
         // or nothing, is unbiased whatever the direction.
@@ -558,20 +568,50 @@ impl<'a, B: Backend> Path<'_, 'a, B> {
             Some((at.position, s.pdf.mixture)),
             v,
         );
-        let segments = &mut self.scratch.segments;
-        if segments.len() <= v.index() {
-            segments.resize(v.index() + 1, Segment::UNKNOWN);
+        if let Some(segment) = self.scratch.segments.get_mut(v.index()) {
+            segment.distance = distance;
         }
-        segments[v.index()] = Segment {
-            distance,
-            outgoing: sampler.outgoing(),
-        };
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::backend::NoGuide;
+    use std::sync::Mutex;
+
+    /// A backend that guides nowhere and keeps every segment it is given.
+    #[derive(Default)]
+    struct Spy(Mutex<Vec<(f32, Segment)>>);
+
+    impl Backend for Spy {
+        type Vertex<'a> = NoGuide;
+        fn at(&self, _: Vec3, _: Vec3, _: f32) -> Option<NoGuide> {
+            None
+        }
+        fn in_medium(&self, _: Vec3, _: Vec3, _: f32, _: f32) -> Option<NoGuide> {
+            None
+        }
+        fn record(&self, sample: &sdguide::Sample, segment: Segment) {
+            self.0.lock().unwrap().push((sample.value, segment));
+        }
+        fn refine(&mut self) {}
+    }
+
+    #[test]
+    fn every_recorded_vertex_knows_its_way_back_and_its_reach() {
+        let scene = crate::scenes::door();
+        let mut spy = Spy::default();
+        crate::render::training_pass(&scene, &mut spy, (16, 12), 4, 1, 0, None);
+        let segments = spy.0.into_inner().unwrap();
+        // Classic roulette ends some paths at a vertex: those vertices too lead back along
+        // their path, and reach nothing.
+        assert!(segments.iter().any(|(_, s)| s.distance.is_infinite()));
+        for (value, s) in &segments {
+            assert!((s.outgoing.length() - 1.0).abs() < 1e-4, "{s:?}");
+            assert!(s.distance > 0.0 || *value == 0.0, "{s:?}");
+        }
+    }
 
     #[test]
     fn guided_survival_is_open_pgls_weight_window() {
