@@ -2,7 +2,8 @@
 //!
 //! 1. Relative variance of uniform sampling, of fields trained with the `L1` and `L2` rules, and
 //!    of the oracle (the best piecewise-constant density on the learned partition), on every
-//!    light field of the harness; a PNG plot of relvar against the training budget.
+//!    light field of the harness and the held-out sun and sky; a PNG plot of relvar against the
+//!    training budget.
 //! 2. Refinement: flux share against variance gain, at equal node counts (a node budget per
 //!    directional tree that both reach) and at the default thresholds.
 //! 3. The filters' effect on relvar.
@@ -72,7 +73,10 @@ fn main() {
         ..GuidingConfig::default()
     };
     let mut panels = Vec::new();
-    for field in TestField::all() {
+    for field in TestField::all()
+        .into_iter()
+        .chain([TestField::sun_and_sky()])
+    {
         let l1 = curve(&field, config(LeafRule::L1), budget);
         let l2 = curve(&field, config(LeafRule::L2), budget);
         let (a, b) = (l1.last().unwrap().1, l2.last().unwrap().1);

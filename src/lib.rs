@@ -15,7 +15,7 @@
 //!                                                  (mixture terms ─► the leaf's guide-selection sums;
 //!                                                   under L2Mixture also the value: f·sqrt(p_s·p_g)/q)
 //!   refine   between iterations, &mut self        (deferred box filter: pending quadrant sums ─► moments)
-//!                                                  moments ─► shrinkage ─► rule masses ─► sampling tree
+//!                                                  moments (l2: own second moment blended in) ─► shrinkage ─► rule masses ─► sampling tree
 //!                                                  quadrant sums ─► split gains ─► new topology
 //!                                                  guide probability ─► one Newton step
 //!                                                  tallied normals ─► stored products with the cosine

@@ -204,14 +204,14 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((3, 1), &parts(&bytes)),
+        assemble((3, 2), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
     // Without the continuations (an optional section): it loads, with no continuation
     // estimates and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 6).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 1), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 2), &without)).unwrap();
     assert_eq!(older.stats().continuations_recorded, 0);
     assert!(
         older
@@ -222,23 +222,23 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     // Without the surface tallies: it loads, with no stored products (queries take the
     // per-query product), and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 7).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 1), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 2), &without)).unwrap();
     assert!(field.stats().surface_products > 0);
     assert_eq!(older.stats().surface_products, 0);
     for (a, b) in field.cells().zip(older.cells()) {
         assert_eq!(a.distribution().leaves(), b.distribution().leaves());
     }
-    // A 3.2 file with an optional section this reader does not know, and a longer META.
+    // A 3.3 file with an optional section this reader does not know, and a longer META.
     let mut newer = parts(&bytes);
     newer[0].2.extend_from_slice(&[0xAB; 40]);
     newer.insert(1, (99, 0, vec![1, 2, 3]));
-    let loaded = GuidingField::from_bytes(&assemble((3, 2), &newer)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((3, 3), &newer)).unwrap();
     assert_same(&field, &loaded);
     // An unknown section marked required is refused.
     let mut required = parts(&bytes);
     required.push((99, 1, vec![]));
     assert!(matches!(
-        GuidingField::from_bytes(&assemble((3, 2), &required)),
+        GuidingField::from_bytes(&assemble((3, 3), &required)),
         Err(CacheError::Corrupt {
             section: "sections",
             ..
@@ -246,7 +246,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((4, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((4, 0), (3, 1)));
+            assert_eq!((found, supported), ((4, 0), (3, 2)));
         }
         other => panic!("{other:?}"),
     }
@@ -261,7 +261,7 @@ fn forge(bytes: &[u8], kind: u32, at: usize, value: [u8; 4]) -> Result<GuidingFi
     let mut p = parts(bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == kind).unwrap().2;
     body[at..at + 4].copy_from_slice(&value);
-    GuidingField::from_bytes(&assemble((3, 1), &p))
+    GuidingField::from_bytes(&assemble((3, 2), &p))
 }
 
 #[test]
@@ -307,7 +307,7 @@ fn forged_files_with_valid_checksums_are_still_refused() {
     body[4 + 16..4 + 56].fill(0);
     body[4 + 24..4 + 28].copy_from_slice(&3.0f32.to_le_bytes());
     corrupt(
-        GuidingField::from_bytes(&assemble((3, 1), &p)),
+        GuidingField::from_bytes(&assemble((3, 2), &p)),
         "surfaces",
         "normal",
     );
@@ -467,7 +467,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (3, 1)));
+            assert_eq!((found, supported), ((1, 0), (3, 2)));
         }
         other => panic!("{other:?}"),
     }
@@ -799,16 +799,63 @@ fn merging_fields_that_did_not_start_together_is_refused_untouched() {
 
 #[test]
 fn a_three_zero_file_loads_as_a_field_without_volumes() {
-    // 3.0 is 3.1 without the META's last 24 bytes (flags, the medium samples' rejection
-    // counters) and without volume sections.
+    // 3.0 is 3.2 without the META's last 32 bytes (flags, the medium samples' rejection
+    // counters, `filter_samples`) and without volume sections; its masses were the filtered
+    // sums alone.
     let field = small_field();
     let bytes = field.to_bytes();
     let mut older = parts(&bytes);
     assert!(older.iter().all(|p| p.0 < 10));
     let meta = &mut older[0].2;
-    meta.truncate(meta.len() - 24);
+    meta.truncate(meta.len() - 32);
     let loaded = GuidingField::from_bytes(&assemble((3, 0), &older)).unwrap();
     assert!(!loaded.config().volumes);
     assert_same(&field, &loaded);
     assert_eq!(loaded.to_bytes(), bytes);
+}
+
+/// `field` (whose `filter_samples` is `None`) with `filter_samples` at 128, by its bytes.
+fn blended(field: GuidingField) -> GuidingField {
+    assert_eq!(field.config().filter_samples, None);
+    let mut p = parts(&field.to_bytes());
+    assert_eq!(p[0].2[240..244], (-1.0f32).to_le_bytes());
+    p[0].2[240..244].copy_from_slice(&128.0f32.to_le_bytes());
+    GuidingField::from_bytes(&assemble((3, 2), &p)).unwrap()
+}
+
+#[test]
+fn a_three_one_file_keeps_its_filtered_masses_and_a_three_two_file_its_blend() {
+    let field = blended(small_field());
+    assert_eq!(field.config().filter_samples, Some(128.0));
+    let bytes = field.to_bytes();
+    assert_same(&field, &GuidingField::from_bytes(&bytes).unwrap());
+    // 3.1: META without its last 8 bytes. It loads with `None`, and the next refine computes
+    // its masses from the filtered sums, as a 3.1 library did: it differs from the blend.
+    let mut older = parts(&bytes);
+    let meta = &mut older[0].2;
+    meta.truncate(meta.len() - 8);
+    let mut old = GuidingField::from_bytes(&assemble((3, 1), &older)).unwrap();
+    assert_eq!(old.config().filter_samples, None);
+    let mut expected = small_field();
+    let mut blend = field;
+    for f in [&mut old, &mut expected, &mut blend] {
+        f.refine();
+    }
+    assert_same(&old, &expected);
+    assert!(
+        old.cells()
+            .zip(blend.cells())
+            .any(|(a, b)| a.distribution().leaves() != b.distribution().leaves()),
+        "the blend changes some masses"
+    );
+    // A negative count is `None`; NaN is refused.
+    for (value, ok) in [(-1.0f32, true), (f32::NAN, false), (f32::INFINITY, false)] {
+        let mut p = parts(&bytes);
+        p[0].2[240..244].copy_from_slice(&value.to_le_bytes());
+        assert_eq!(
+            GuidingField::from_bytes(&assemble((3, 2), &p)).is_ok(),
+            ok,
+            "{value}"
+        );
+    }
 }

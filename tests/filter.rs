@@ -400,3 +400,73 @@ fn the_second_moment_replaces_the_squared_value_and_leaves_the_mean() {
     // With a zero value nothing is recorded, whatever the second moment says.
     assert_eq!(moments(Sample { value: 0.0, ..with }), (0.0, 0.0));
 }
+
+/// A single-cell field with `directional` and `filter_samples`, no shrinkage, after one refine
+/// of: 4000 samples of value 1 spread evenly over the square, and 1000 of value 100 at the
+/// point (0.3, 0.3) of the square — a bright point source in the first of the four initial
+/// quadrants, whose leaf-sized box reaches 10% into each neighbour per axis.
+fn point_source(directional: DirectionalFilter, filter_samples: Option<f32>) -> GuidingField {
+    let field = GuidingField::new(
+        unit_box(),
+        GuidingConfig {
+            spatial_threshold: 1e9,
+            prior_samples: 0.0,
+            filter_samples,
+            ..config(SpatialFilter::Nearest, directional)
+        },
+    )
+    .unwrap();
+    let sample = |s: Vec2, value: f32| Sample {
+        position: Vec3::splat(0.5),
+        direction: square_to_direction(s),
+        value,
+        pdf: 1.0 / (4.0 * std::f32::consts::PI),
+        ..Sample::default()
+    };
+    for i in 0..4000 {
+        let s = Vec2::new(
+            ((i % 64) as f32 + 0.5) / 64.0,
+            ((i / 64) as f32 + 0.5) / 62.5,
+        );
+        field.record(&sample(s, 1.0));
+    }
+    for _ in 0..1000 {
+        field.record(&sample(Vec2::new(0.3, 0.3), 100.0));
+    }
+    field
+}
+
+#[test]
+fn the_l2_masses_blend_a_leafs_own_second_moment_with_the_filtered_one_by_its_count() {
+    // Own second moments are what the nearest filter records; filtered ones the box filter's.
+    let own = recorded(&point_source(DirectionalFilter::Nearest, None));
+    let filtered = recorded(&point_source(DirectionalFilter::Box, None));
+    assert_eq!(own.len(), 4);
+    // The box hands each neighbour of the source's leaf 9% of its second moment, the far one 1%.
+    assert!(filtered[1].2.sum_sq > 50.0 * own[1].2.sum_sq);
+    let eps = f64::from(GuidingConfig::default().uniform_fraction);
+    for n_f in [None, Some(0.0f32), Some(128.0), Some(1e6)] {
+        let mut field = point_source(DirectionalFilter::Box, n_f);
+        field.refine();
+        let learned = field.distribution(Vec3::splat(0.5)).leaves();
+        // mass_i = sqrt(|C_i|·S2_i), S2_i = w·own + (1 − w)·filtered, w = n/(n + n_f).
+        let mass: Vec<f64> = own
+            .iter()
+            .zip(&filtered)
+            .map(|((_, cell, o), (_, _, f))| {
+                let n = o.count as f64;
+                let w = n_f.map_or(0.0, |n_f| n / (n + f64::from(n_f)));
+                (cell.area() * (w * o.sum_sq + (1.0 - w) * f.sum_sq)).sqrt()
+            })
+            .collect();
+        let total: f64 = mass.iter().sum();
+        for ((cell, p), ((_, own_cell, _), m)) in learned.iter().zip(own.iter().zip(&mass)) {
+            assert_eq!(cell, own_cell);
+            let expected = (1.0 - eps) * m / total + eps * cell.area();
+            assert!(
+                (f64::from(*p) - expected).abs() < 1e-5 * expected,
+                "n_f {n_f:?}, {cell:?}: {p} vs {expected}"
+            );
+        }
+    }
+}

@@ -239,7 +239,7 @@ fn every_truncation_and_byte_flip_of_a_volume_cache_is_an_error() {
     // cleared while they are there, or an unknown flag, are refused as corrupt.
     let corrupt = |p: &[(u32, u32, Vec<u8>)]| {
         matches!(
-            GuidingField::from_bytes(&assemble((3, 1), p)),
+            GuidingField::from_bytes(&assemble((3, 2), p)),
             Err(CacheError::Corrupt { .. })
         )
     };
@@ -261,7 +261,7 @@ fn every_truncation_and_byte_flip_of_a_volume_cache_is_an_error() {
         .into_iter()
         .filter(|p| !(11..=14).contains(&p.0))
         .collect();
-    let loaded = GuidingField::from_bytes(&assemble((3, 1), &optional)).unwrap();
+    let loaded = GuidingField::from_bytes(&assemble((3, 2), &optional)).unwrap();
     let x = Vec3::splat(0.4);
     assert_eq!(loaded.volume_distribution(x).guide_probability(), 0.5);
     assert_eq!(

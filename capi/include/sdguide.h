@@ -68,6 +68,12 @@
 #define SDG_CONFIG_VOLUMES 2
 
 /*
+ In `sdg_config::flags`: `filter_samples` is set (see the Rust
+ `GuidingConfig::filter_samples`).
+ */
+#define SDG_CONFIG_FILTER_SAMPLES 4
+
+/*
  In `sdg_sample::flags`: `integrand`, `bsdf_pdf` and `guide_pdf` are set.
  */
 #define SDG_SAMPLE_MIXTURE 1
@@ -251,9 +257,16 @@ typedef struct {
   float guide_cost;
   /*
    Which optional fields and switches are set: `SDG_CONFIG_GUIDE_COST`,
-   `SDG_CONFIG_VOLUMES`, or'ed; 0 for none.
+   `SDG_CONFIG_VOLUMES`, `SDG_CONFIG_FILTER_SAMPLES`, or'ed; 0 for none.
    */
   uint32_t flags;
+  /*
+   `n_f`: samples a directional leaf needs before its own second moment weighs as much as
+   the filtered one in the l2 masses; finite, >= 0. Read only with
+   `SDG_CONFIG_FILTER_SAMPLES` in `flags` (set by `sdg_config_default`); without it the
+   masses use the filtered sums alone.
+   */
+  float filter_samples;
 } sdg_config;
 
 /*

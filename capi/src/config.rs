@@ -68,8 +68,13 @@ pub struct sdg_config {
     /// without it the guide never turns off.
     pub guide_cost: f32,
     /// Which optional fields and switches are set: `SDG_CONFIG_GUIDE_COST`,
-    /// `SDG_CONFIG_VOLUMES`, or'ed; 0 for none.
+    /// `SDG_CONFIG_VOLUMES`, `SDG_CONFIG_FILTER_SAMPLES`, or'ed; 0 for none.
     pub flags: u32,
+    /// `n_f`: samples a directional leaf needs before its own second moment weighs as much as
+    /// the filtered one in the l2 masses; finite, >= 0. Read only with
+    /// `SDG_CONFIG_FILTER_SAMPLES` in `flags` (set by `sdg_config_default`); without it the
+    /// masses use the filtered sums alone.
+    pub filter_samples: f32,
 }
 
 /// In `sdg_config::flags`: `guide_cost` is set (without it, the guide never turns off).
@@ -78,6 +83,9 @@ pub const SDG_CONFIG_GUIDE_COST: u32 = 1;
 /// participating media (see the Rust `GuidingConfig::volumes`, `sdg_field_volume_distribution`
 /// and `SDG_SAMPLE_VOLUME`).
 pub const SDG_CONFIG_VOLUMES: u32 = 2;
+/// In `sdg_config::flags`: `filter_samples` is set (see the Rust
+/// `GuidingConfig::filter_samples`).
+pub const SDG_CONFIG_FILTER_SAMPLES: u32 = 4;
 
 /// The C codes of a library enum, in one table that both conversions read.
 struct Codes<T: 'static> {
@@ -178,7 +186,13 @@ impl sdg_config {
                 SDG_CONFIG_GUIDE_COST
             } else {
                 0
-            } | if c.volumes { SDG_CONFIG_VOLUMES } else { 0 },
+            } | if c.volumes { SDG_CONFIG_VOLUMES } else { 0 }
+                | if c.filter_samples.is_some() {
+                    SDG_CONFIG_FILTER_SAMPLES
+                } else {
+                    0
+                },
+            filter_samples: c.filter_samples.unwrap_or(0.0),
         }))
     }
 
@@ -193,6 +207,7 @@ impl sdg_config {
             refinement: REFINEMENTS.value(c.refinement)?,
             guide_cost: (c.flags & SDG_CONFIG_GUIDE_COST != 0).then_some(c.guide_cost),
             volumes: c.flags & SDG_CONFIG_VOLUMES != 0,
+            filter_samples: (c.flags & SDG_CONFIG_FILTER_SAMPLES != 0).then_some(c.filter_samples),
         }))
     }
 }

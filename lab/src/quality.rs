@@ -109,6 +109,40 @@ impl TestField {
 }
 
 impl TestField {
+    /// A field held out of [`all`](Self::all)'s tables, of a class the library was not tuned
+    /// on: a tiny, very bright sun over a smooth sky whose strength changes with position. The
+    /// sun is a vMF lobe of κ = 10⁴ (about half a degree wide) from a fixed direction, of power 1,
+    /// so its peak radiance is some 3000 times the sky's; the sky is a broad lobe (κ = 2) from
+    /// above the room whose strength falls off with the distance to it, over a dim ambient term.
+    /// Values are exact: a renderer's next-event estimation sees a sun without noise.
+    pub fn sun_and_sky() -> TestField {
+        TestField {
+            name: "sun and sky",
+            workload: Workload {
+                light: LightField {
+                    lobes: vec![
+                        VmfLobe {
+                            target: Vec3::new(300.0, 1000.0, 200.0),
+                            kappa: 10_000.0,
+                            power: 1.0,
+                            falloff: 0.0,
+                        },
+                        VmfLobe {
+                            target: Vec3::new(0.2, 2.5, 0.8),
+                            kappa: 2.0,
+                            power: 4.0,
+                            falloff: 1.0,
+                        },
+                    ],
+                    ambient: 0.02,
+                },
+                lobe_noise: 1.0,
+                seed: 1,
+                bsdf: None,
+            },
+        }
+    }
+
     /// The same field with the harness's BSDF (a glossy lobe, κ = 8, about a direction tilted
     /// toward the lights), so that training draws from the guide–BSDF mixture and learns the
     /// guide probability (see [`selection_variances`]).

@@ -69,6 +69,10 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     for counts in rejected {
         out.u64(counts[REASONS_3_0]);
     }
+    debug_assert_eq!(out.0.len(), META_LEN_3_1);
+    // Filtered second moments alone: a negative count.
+    out.f32(c.filter_samples.unwrap_or(-1.0));
+    out.u32(0);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -177,6 +181,15 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         counts[0][REASONS_3_0] = r.u64()?;
         counts[1][REASONS_3_0] = r.u64()?;
     }
+    // 3.2: the filter's sample count in the l2 masses. An older file's masses were the filtered
+    // sums alone, and keep being so.
+    field.config.filter_samples = if r.bytes.is_empty() {
+        None
+    } else {
+        let n = r.f32()?;
+        r.u32()?;
+        Some(n).filter(|&n| n >= 0.0 || n.is_nan())
+    };
     field.rejected_before = Rejections::from_array(counts[0]);
     field.rejected = RejectCounters::from_rejections(Rejections::from_array(counts[1]));
     field

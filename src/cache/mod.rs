@@ -67,7 +67,7 @@ pub const FORMAT_MAJOR: u16 = 3;
 /// `PENDING` section (the deferred box filter's sums not yet spread). 3.1 adds volume guides:
 /// the `volumes` flag and the medium samples' rejection counters at the end of `META`, and the
 /// `VOLUME_*` sections (required where the field has volumes; a 3.0 file has none).
-pub const FORMAT_MINOR: u16 = 1;
+pub const FORMAT_MINOR: u16 = 2;
 /// The oldest major a reader loads (converting its sums).
 const LEGACY_MAJOR: u16 = 2;
 
@@ -126,11 +126,13 @@ const META_LEN_2_6: usize = 200;
 const REASONS_3_0: usize = 5;
 /// Length of the `META` section in format 3.0.
 const META_LEN_3_0: usize = 216;
+/// Length of the `META` section in format 3.1.
+const META_LEN_3_1: usize = 240;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
 /// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound,
 /// 2.6 the guide's cost, 3.0 the clamped-sample counters, 3.1 the flags (bit 0: volumes) and
-/// the counters of medium samples rejected for want of a volume guide).
-const META_LEN: usize = 240;
+/// the counters of medium samples rejected for want of a volume guide, 3.2 `filter_samples`).
+const META_LEN: usize = 248;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;

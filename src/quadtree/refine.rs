@@ -24,6 +24,9 @@ pub(crate) struct RefineParams {
     pub max_depth: u32,
     pub max_nodes: u32,
     pub prior_samples: f64,
+    /// `n_f` of [`GuidingConfig::filter_samples`](crate::GuidingConfig::filter_samples) when the
+    /// l2 rules' masses blend a leaf's own second moment with the filtered one.
+    pub filter_samples: Option<f64>,
     /// Whether recording defers the directional box filter to refine (give leaves pending sums).
     pub deferred: bool,
 }
@@ -167,7 +170,10 @@ pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
 
     // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
     //    shrunk toward their parents' (see `shrunk_moments`).
-    let shrunk = rec.shrunk_moments(params.prior_samples);
+    let blend = params
+        .filter_samples
+        .filter(|_| params.rule != LeafRule::L1);
+    let shrunk = rec.shrunk_moments(params.prior_samples, blend);
     let leaf_moments = &shrunk.leaves;
     let mut leaf_mass = vec![0.0f64; rec.moments.len()];
     for (i, slots) in rec.nodes.iter().enumerate() {
@@ -327,13 +333,28 @@ impl RecordingTree {
     ///
     /// Returns the estimates of every interior node (the root's is its pooled sums) and of
     /// every leaf.
+    ///
+    /// With `filter_samples = Some(n_f)` a leaf's second moment is first blended with its own
+    /// samples' (the quadrant sums, which only a sample's own leaf records):
+    /// `w·own + (1 − w)·filtered`, `w = n/(n + n_f)` (see
+    /// [`GuidingConfig::filter_samples`](crate::GuidingConfig::filter_samples)). Without a
+    /// filter that spreads, the two are equal.
     #[inline]
-    fn shrunk_moments(&self, prior_samples: f64) -> ShrunkMoments {
+    fn shrunk_moments(&self, prior_samples: f64, filter_samples: Option<f64>) -> ShrunkMoments {
         // Read once: `shrink` visits every leaf twice, and a read converts exact sums.
         let leaves: Vec<(f64, f64, u64)> = (0..self.moments.len())
             .map(|k| {
                 let m = self.moments_of(k);
-                (m.sum, m.sum_sq, m.count)
+                let sum_sq = match filter_samples {
+                    Some(nf) if m.count > 0 => {
+                        let own: f64 = self.quadrants[k].get().iter().map(|q| q.0).sum();
+                        let n = m.count as f64;
+                        let w = n / (n + nf);
+                        w * own + (1.0 - w) * m.sum_sq
+                    }
+                    _ => m.sum_sq,
+                };
+                (m.sum, sum_sq, m.count)
             })
             .collect();
         self.shrink(prior_samples, |k| leaves[k])

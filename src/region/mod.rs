@@ -59,6 +59,7 @@ impl StepParams {
                 max_depth: config.max_directional_depth,
                 max_nodes,
                 prior_samples: f64::from(config.prior_samples),
+                filter_samples: config.filter_samples.map(f64::from),
                 deferred: config.directional_filter.defers(),
             },
             max_guide_probability: config.max_guide_probability,

@@ -60,14 +60,18 @@ struct Cli {
     max_guide_probability: f32,
     /// What a guided vertex costs, relative, for cells to turn their guides off by (`none`:
     /// never; the default is this renderer's measured cost).
-    #[arg(long, default_value_t = GuideCost(Some(GUIDE_COST)))]
-    guide_cost: GuideCost,
+    #[arg(long, default_value_t = OrNone(Some(GUIDE_COST)))]
+    guide_cost: OrNone,
     /// How directional cells split.
     #[arg(long, value_enum, default_value = "gain")]
     refinement: RefinementArg,
     /// The directional filter.
     #[arg(long, value_enum, default_value = "box")]
     filter: FilterArg,
+    /// `n_f`: samples a directional leaf needs before its own second moment weighs as much as
+    /// the filtered one in the l2 masses (`none`: the filtered sums alone).
+    #[arg(long, default_value_t = OrNone(GuidingConfig::default().filter_samples))]
+    filter_samples: OrNone,
     /// `c`: spatial leaves split past `c·sqrt(2^k)` samples in iteration `k`.
     #[arg(long, default_value_t = GuidingConfig::default().spatial_threshold)]
     spatial_threshold: f32,
@@ -118,6 +122,7 @@ pub struct Args {
     pub guide_cost: Option<f32>,
     pub refinement: Refinement,
     pub directional_filter: DirectionalFilter,
+    pub filter_samples: Option<f32>,
     pub spatial_threshold: f32,
     /// Next-event estimation (light sampling at every vertex).
     pub nee: bool,
@@ -198,6 +203,7 @@ impl Args {
         GuidingConfig {
             refinement: self.refinement,
             directional_filter: self.directional_filter,
+            filter_samples: self.filter_samples,
             spatial_threshold: self.spatial_threshold,
             max_guide_probability: self.max_guide_probability,
             guide_cost: self.guide_cost,
@@ -271,6 +277,7 @@ pub fn parse() -> Result<Args, String> {
             FilterArg::Deferred => DirectionalFilter::DeferredBox,
             FilterArg::Nearest => DirectionalFilter::Nearest,
         },
+        filter_samples: cli.filter_samples.0,
         spatial_threshold: cli.spatial_threshold,
         nee: cli.nee == OnOff::On,
         probe: cli.probe,
@@ -332,21 +339,21 @@ fn probability(value: &str) -> Result<f32, String> {
     }
 }
 
-/// `--guide-cost`: a number, or `none`.
+/// `--guide-cost`, `--filter-samples`: a number, or `none`.
 #[derive(Clone, Copy, Debug)]
-struct GuideCost(Option<f32>);
+struct OrNone(Option<f32>);
 
-impl std::str::FromStr for GuideCost {
+impl std::str::FromStr for OrNone {
     type Err = String;
     fn from_str(value: &str) -> Result<Self, String> {
         match value {
-            "none" => Ok(GuideCost(None)),
-            _ => number(value).map(|c| GuideCost(Some(c))),
+            "none" => Ok(OrNone(None)),
+            _ => number(value).map(|c| OrNone(Some(c))),
         }
     }
 }
 
-impl std::fmt::Display for GuideCost {
+impl std::fmt::Display for OrNone {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self.0 {
             Some(c) => write!(f, "{c}"),
