@@ -177,6 +177,13 @@ pub(crate) struct AtomicQuadrants([AtomicQuadrant; 4]);
 /// A snapshot of [`AtomicQuadrants`]: per quadrant `q = ix + 2·iy`, `(Σ v²/p, n)`.
 pub(crate) type Quadrants = [(f64, u64); 4];
 
+/// A leaf's own samples pooled from its quadrants: `(Σ v²/p, n)` (the count saturating).
+pub(crate) fn own_sums(q: &Quadrants) -> (f64, u64) {
+    q.iter().fold((0.0, 0u64), |(s2, n), &(s, c)| {
+        (s2 + s, n.saturating_add(c))
+    })
+}
+
 /// [`Quadrants`] as kept, exact.
 pub(crate) type ExactQuadrants = [(Sum, u64); 4];
 

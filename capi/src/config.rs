@@ -173,6 +173,11 @@ macro_rules! with_plain_fields {
     };
 }
 
+/// `bit` where `on`, else 0.
+fn flag(on: bool, bit: u32) -> u32 {
+    if on { bit } else { 0 }
+}
+
 impl sdg_config {
     /// The C form of a library configuration.
     fn from_rust(c: &GuidingConfig) -> Result<Self, Failure> {
@@ -182,16 +187,9 @@ impl sdg_config {
             directional_filter: DIRECTIONAL_FILTERS.code(c.directional_filter)?,
             refinement: REFINEMENTS.code(c.refinement)?,
             guide_cost: c.guide_cost.unwrap_or(0.0),
-            flags: if c.guide_cost.is_some() {
-                SDG_CONFIG_GUIDE_COST
-            } else {
-                0
-            } | if c.volumes { SDG_CONFIG_VOLUMES } else { 0 }
-                | if c.filter_samples.is_some() {
-                    SDG_CONFIG_FILTER_SAMPLES
-                } else {
-                    0
-                },
+            flags: flag(c.guide_cost.is_some(), SDG_CONFIG_GUIDE_COST)
+                | flag(c.volumes, SDG_CONFIG_VOLUMES)
+                | flag(c.filter_samples.is_some(), SDG_CONFIG_FILTER_SAMPLES),
             filter_samples: c.filter_samples.unwrap_or(0.0),
         }))
     }

@@ -163,7 +163,7 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     field.config.guide_cost = if r.bytes.is_empty() {
         None
     } else {
-        Some(r.f32()?).filter(|&c| c >= 0.0 || c.is_nan())
+        unset_if_negative(r.f32()?)
     };
     // 3.0: the clamped-sample counters. An older file's sums were floating point: none clamped.
     if !r.bytes.is_empty() {
@@ -188,7 +188,7 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
     } else {
         let n = r.f32()?;
         r.u32()?;
-        Some(n).filter(|&n| n >= 0.0 || n.is_nan())
+        unset_if_negative(n)
     };
     field.rejected_before = Rejections::from_array(counts[0]);
     field.rejected = RejectCounters::from_rejections(Rejections::from_array(counts[1]));
@@ -197,4 +197,10 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         .validate()
         .map_err(|e| corrupt("meta", e.to_string()))?;
     Ok(field)
+}
+
+/// An optional number as `META` stores it: negative for `None`. NaN stays, for validation to
+/// refuse.
+fn unset_if_negative(v: f32) -> Option<f32> {
+    Some(v).filter(|&v| v >= 0.0 || v.is_nan())
 }

@@ -5,6 +5,7 @@
 use super::{
     LEAF_BIT, NO_CHILD, RecordingTree, SamplingNode, SamplingTree, cell_area, recording::FREE,
 };
+use crate::moments::own_sums;
 use crate::refinement::Refinement;
 use crate::refinement::{
     MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, SPLIT_PRIOR_SAMPLES, split_gain,
@@ -170,10 +171,7 @@ pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
 
     // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
     //    shrunk toward their parents' (see `shrunk_moments`).
-    let blend = params
-        .filter_samples
-        .filter(|_| params.rule != LeafRule::L1);
-    let shrunk = rec.shrunk_moments(params.prior_samples, blend);
+    let shrunk = rec.shrunk_moments(params.prior_samples, params.filter_samples);
     let leaf_moments = &shrunk.leaves;
     let mut leaf_mass = vec![0.0f64; rec.moments.len()];
     for (i, slots) in rec.nodes.iter().enumerate() {
@@ -338,7 +336,8 @@ impl RecordingTree {
     /// samples' (the quadrant sums, which only a sample's own leaf records):
     /// `w·own + (1 − w)·filtered`, `w = n/(n + n_f)` (see
     /// [`GuidingConfig::filter_samples`](crate::GuidingConfig::filter_samples)). Without a
-    /// filter that spreads, the two are equal.
+    /// filter that spreads, the two are equal; only the l2 rules' masses read the second
+    /// moment, so l1's are unaffected.
     #[inline]
     fn shrunk_moments(&self, prior_samples: f64, filter_samples: Option<f64>) -> ShrunkMoments {
         // Read once: `shrink` visits every leaf twice, and a read converts exact sums.
@@ -347,7 +346,7 @@ impl RecordingTree {
                 let m = self.moments_of(k);
                 let sum_sq = match filter_samples {
                     Some(nf) if m.count > 0 => {
-                        let own: f64 = self.quadrants[k].get().iter().map(|q| q.0).sum();
+                        let (own, _) = own_sums(&self.quadrants[k].get());
                         let n = m.count as f64;
                         let w = n / (n + nf);
                         w * own + (1.0 - w) * m.sum_sq
@@ -417,9 +416,8 @@ impl RecordingTree {
         let per_leaf: Vec<(f64, f64, u64)> = quadrants
             .iter()
             .map(|q| {
-                q.iter().fold((0.0, 0.0, 0u64), |(_, s2, n), &(s, c)| {
-                    (0.0, s2 + s, n.saturating_add(c))
-                })
+                let (s2, n) = own_sums(q);
+                (0.0, s2, n)
             })
             .collect();
         let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| per_leaf[k]);
