@@ -167,8 +167,7 @@ impl GuidingField {
 
     /// [`record`](Self::record)s every sample, in parallel; returns how many were rejected
     /// (each counted in [`FieldStats::rejected`](crate::FieldStats::rejected), as by `record`).
-    /// Like recording from several threads, the order in which the samples' weights are added
-    /// is the threads', and so are the sums' last bits.
+    /// The sums are exact, so the field is the same whatever order the threads add them in.
     pub fn record_batch(&self, samples: &[Sample]) -> u64 {
         samples
             .par_chunks(BATCH_CHUNK)

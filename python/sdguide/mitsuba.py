@@ -1,0 +1,407 @@
+"""A guided path tracer for Mitsuba 3, run as a wavefront: one bounce of every path at a time.
+
+Mitsuba traces the rays and evaluates and samples its own BSDFs and emitters; sdguide, between
+two bounces, gives each vertex the guide's learned probability, draws the guided directions
+(from the product with the clamped cosine) and their pdfs, and records the finished paths
+through :class:`sdguide.PathRecorderBatch`. Everything a bounce needs from Mitsuba is
+evaluated in one ``dr.eval`` and handed to numpy; the loop over bounces is plain Python.
+
+The estimator at a vertex with a smooth, reflecting BSDF samples the one-sample mixture
+``q = a·p_guide + (1 − a)·p_bsdf`` (``a`` the cell's learned guide probability), weighs the
+sampled direction by ``f·cos/q``, and combines next-event estimation with the mixture by the
+power heuristic. BSDFs with a delta lobe, and transmitting ones, are left to the BSDF
+(``a = 0``): the cosine product guides the reflecting hemisphere only. Russian roulette is
+classic, on the throughput after ``rr_depth`` bounces, as Mitsuba's ``path`` plays it, so the
+two are compared on the guide alone.
+
+Training follows the SD-tree schedule: passes of 1, 2, 4, … samples per pixel, each recorded
+and followed by ``refine``; the image is the final pass, rendered with the trained field.
+
+    from sdguide.mitsuba import GuidedPathTracer, register, set_variant
+    set_variant("llvm_ad_rgb")      # finds an LLVM ≥ 16 for Dr.Jit
+    image, field, info = GuidedPathTracer(max_depth=8).render(scene, spp=64, seed=1)
+    register()                      # or as a Mitsuba plugin:
+    mi.render(scene, integrator=mi.load_dict({"type": "sdguide", "spp_training": 31}))
+
+Needs Mitsuba 3.6 or newer and a vectorized variant (``llvm_ad_rgb``; Dr.Jit's LLVM backend
+needs LLVM 16 or newer, which :func:`set_variant` finds; ``scalar_rgb`` does not apply — the
+loop works on arrays).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+import time
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
+
+import numpy as np
+
+import sdguide
+
+try:
+    import drjit as dr
+    import mitsuba as mi
+except ImportError as error:  # pragma: no cover - the message is the point
+    raise ImportError(
+        "sdguide.mitsuba needs Mitsuba 3: pip install 'sdguide[mitsuba]' (or mitsuba)"
+    ) from error
+
+
+def set_variant(variant: str = "llvm_ad_rgb") -> None:
+    """``mi.set_variant(variant)``, first pointing Dr.Jit at an LLVM it can use for the LLVM
+    variants: ``DRJIT_LIBLLVM_PATH`` if set, else the newest ``libLLVM`` 16–19 in the usual
+    library directories (Debian: ``apt-get install libllvm19``). Older ones abort the process
+    at the first kernel."""
+    if variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in os.environ:
+        for version in (19, 18, 17, 16):
+            found = sorted(
+                glob.glob(f"/usr/lib/*/libLLVM.so.{version}*")
+                + glob.glob(f"/usr/lib/*/libLLVM-{version}.so*")
+                + glob.glob(f"/usr/lib/llvm-{version}/lib/libLLVM*.so*")
+            )
+            if found:
+                os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
+                break
+    mi.set_variant(variant)
+
+
+#: Lanes traced at once: passes with more samples run in waves of this many paths.
+MAX_LANES = 1 << 20
+
+
+def _soa(v) -> np.ndarray:
+    """A Mitsuba 3-vector array as an ``(N, 3)`` C-contiguous float32 numpy array."""
+    return np.ascontiguousarray(np.asarray(v, dtype=np.float32).T)
+
+
+def _np(v) -> np.ndarray:
+    return np.asarray(v)
+
+
+def _vec(a: np.ndarray):
+    """An ``(N, 3)`` numpy array as a Mitsuba vector array."""
+    return mi.Vector3f(np.ascontiguousarray(a.T))
+
+
+@dataclass
+class RenderInfo:
+    """What a render did: its passes and times, and the field's size at the end."""
+
+    seconds_training: float = 0.0
+    seconds_render: float = 0.0
+    passes: list = dataclass_field(default_factory=list)
+    #: The mean over the image of each render wave, per channel: independent estimates given
+    #: the field, whose spread gives the image mean's standard error.
+    wave_means: list = dataclass_field(default_factory=list)
+    stats: dict = dataclass_field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        return self.seconds_training + self.seconds_render
+
+
+class GuidedPathTracer:
+    """Path tracing with next-event estimation, MIS and the guide–BSDF mixture.
+
+    ``guided=False`` gives the same wavefront tracer with the guide off (``a = 0``): the
+    baseline that separates the guide's effect from the tracer's. ``config`` holds
+    :class:`sdguide.GuidingField` keywords; ``training_passes`` passes of 1, 2, 4, … spp train
+    the field before the final render (0: no training; a field passed to ``render`` is used
+    as it is).
+    """
+
+    def __init__(
+        self,
+        max_depth: int = 8,
+        rr_depth: int = 5,
+        guided: bool = True,
+        training_passes: int = 5,
+        progress: bool = False,
+        **config,
+    ):
+        if max_depth < 1 or rr_depth < 1:
+            raise ValueError("max_depth and rr_depth must be at least 1")
+        self.max_depth = max_depth
+        self.rr_depth = rr_depth
+        self.guided = guided
+        self.training_passes = training_passes if guided else 0
+        self.progress = progress
+        self.config = config
+
+    # --- the public entry points ------------------------------------------------------------
+
+    def render(self, scene, spp: int, seed: int = 0, field=None, sensor=None, budget=None, waves=1):
+        """Trains (unless ``field`` is given or the guide is off), then renders ``waves``
+        waves of ``spp`` samples per pixel: returns ``(image (H, W, 3) float32, field,
+        RenderInfo)``, the image the waves' mean.
+
+        With ``budget`` (seconds), waves go on until the training and rendering time reaches
+        it: an equal-time render.
+        """
+        sensor = sensor or scene.sensors()[0]
+        rng = np.random.default_rng(seed)
+        info = RenderInfo()
+        start = time.perf_counter()
+        if field is None:
+            lower, upper = self._bounds(scene)
+            field = sdguide.GuidingField(lower, upper, **self.config)
+            for k in range(self.training_passes):
+                t = time.perf_counter()
+                self._pass(scene, sensor, 1 << k, rng, field, record=True)
+                field.refine()
+                info.passes.append(("training", 1 << k, time.perf_counter() - t))
+                self._say(f"training pass {k}: {1 << k} spp, {time.perf_counter() - t:.1f} s")
+        info.seconds_training = time.perf_counter() - start
+        start = time.perf_counter()
+        total, done = None, 0
+        while True:
+            t = time.perf_counter()
+            image = self._pass(scene, sensor, spp, rng, field, record=False)
+            total = image if total is None else total + image
+            done += 1
+            info.wave_means.append(image.mean(axis=(0, 1)))
+            info.passes.append(("render", spp, time.perf_counter() - t))
+            self._say(f"render wave {done}: {spp} spp, {time.perf_counter() - t:.1f} s")
+            if done < waves:
+                continue
+            elapsed = info.seconds_training + time.perf_counter() - start
+            per_wave = (time.perf_counter() - start) / done
+            if budget is None or elapsed + 0.5 * per_wave > budget:
+                break
+        info.seconds_render = time.perf_counter() - start
+        info.stats = field.stats()
+        return (total / done).astype(np.float32), field, info
+
+    # --- one pass -----------------------------------------------------------------------------
+
+    def _say(self, text):
+        if self.progress:
+            print(f"[sdguide] {text}", file=sys.stderr, flush=True)
+
+    @staticmethod
+    def _bounds(scene):
+        bbox = scene.bbox()
+        lower = np.array(bbox.min, np.float64).ravel()
+        upper = np.array(bbox.max, np.float64).ravel()
+        pad = 1e-3 * max(float(np.max(upper - lower)), 1e-6)
+        return tuple(lower - pad), tuple(upper + pad)
+
+    def _pass(self, scene, sensor, spp, rng, field, record):
+        """One pass of ``spp`` samples per pixel, in waves of at most ``MAX_LANES`` paths;
+        returns the pass's image (H, W, 3)."""
+        width, height = (int(v) for v in sensor.film().crop_size())
+        pixels = width * height
+        per_wave = max(1, min(spp, MAX_LANES // pixels))
+        image = np.zeros((pixels, 3), np.float64)
+        done = 0
+        while done < spp:
+            k = min(per_wave, spp - done)
+            image += self._wave(scene, sensor, width, height, k, rng, field, record)
+            done += k
+        return (image / spp).reshape(height, width, 3)
+
+    def _wave(self, scene, sensor, width, height, spp, rng, field, record, estimates=False):
+        """``spp`` paths through every pixel; returns the sum of their estimates per pixel
+        (with ``estimates``: every path's estimate, and the path recorder's for it)."""
+        pixels = width * height
+        n = pixels * spp
+        pixel = np.repeat(np.arange(pixels), spp)
+        film = rng.random((n, 2), dtype=np.float32)
+        film[:, 0] = (pixel % width + film[:, 0]) / width
+        film[:, 1] = (pixel // width + film[:, 1]) / height
+        ray, weight = sensor.sample_ray(
+            time=0.0,
+            sample1=mi.Float(rng.random(n, dtype=np.float32)),
+            sample2=mi.Point2f(np.ascontiguousarray(film.T)),
+            sample3=mi.Point2f(np.ascontiguousarray(rng.random((2, n), dtype=np.float32))),
+        )
+        throughput = np.ones((n, 3)) * _soa(mi.Spectrum(weight))  # a size-1 weight broadcasts
+        radiance = np.zeros((n, 3), np.float64)
+        paths = sdguide.PathRecorderBatch(n) if record else None
+        handle = paths.start() if record else None
+        active = np.ones(n, bool)
+        ctx = mi.BSDFContext()
+        prev_si, prev_q, prev_delta = None, None, None
+        guided = self.guided
+        for depth in range(self.max_depth):
+            if not active.any():
+                break
+            act = mi.Bool(active)
+            si = scene.ray_intersect(ray, act)
+            # Emission the ray hit, weighed against next-event estimation at the last vertex.
+            emitter = si.emitter(scene, act)
+            emitted = emitter.eval(si, act)
+            if depth > 0:
+                ds = mi.DirectionSample3f(scene, si, prev_si)
+                light_pdf = scene.pdf_emitter_direction(prev_si, ds, act & ~prev_delta)
+                q2 = prev_q * prev_q
+                mis = dr.select(prev_delta, 1.0, q2 / dr.maximum(q2 + light_pdf * light_pdf, 1e-30))
+                emitted = emitted * mis
+            go_on = act & si.is_valid() & (depth + 1 < self.max_depth)
+            bsdf = si.bsdf(ray)
+            flags = bsdf.flags()
+            smooth = go_on & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+            guidable = smooth & ~mi.has_flag(flags, mi.BSDFFlags.Delta)
+            guidable &= ~mi.has_flag(flags, mi.BSDFFlags.Transmission)
+            # Next-event estimation at this vertex.
+            light, light_weight = scene.sample_emitter_direction(
+                si,
+                mi.Point2f(np.ascontiguousarray(rng.random((2, n), dtype=np.float32))),
+                True,
+                smooth,
+            )
+            f_light, bsdf_pdf_light = bsdf.eval_pdf(ctx, si, si.to_local(light.d), smooth)
+            # The BSDF's own draw, taken where the guide is not chosen.
+            bs, bs_weight = bsdf.sample(
+                ctx,
+                si,
+                mi.Float(rng.random(n, dtype=np.float32)),
+                mi.Point2f(np.ascontiguousarray(rng.random((2, n), dtype=np.float32))),
+                go_on,
+            )
+            bs_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            facing = dr.select(mi.Frame3f.cos_theta(si.wi) < 0, -1.0, 1.0)
+            normal = si.sh_frame.n * facing
+            bs_direction = si.to_world(bs.wo)
+            nee = f_light * light_weight
+            dr.eval(
+                si,
+                emitted,
+                go_on,
+                smooth,
+                guidable,
+                light,
+                nee,
+                bsdf_pdf_light,
+                bs,
+                bs_weight,
+                bs_delta,
+                normal,
+                bs_direction,
+            )
+            x = _soa(si.p)
+            n_sh = _soa(normal)
+            emitted_np = _soa(emitted).astype(np.float64)
+            go_on_np, smooth_np, guidable_np = _np(go_on), _np(smooth), _np(guidable)
+            radiance += throughput * emitted_np
+            if record:
+                paths.add_radiance(handle, np.ascontiguousarray(emitted_np, np.float32), active)
+            # The mixture's probability and the guide's pdfs.
+            a = np.zeros(n, np.float32)
+            if guided:
+                a = np.where(guidable_np, field.guide_probability(x), 0.0).astype(np.float32)
+            light_d = _soa(light.d)
+            guide_pdf_light = field.pdf(x, light_d, n_sh)
+            q_light = a * guide_pdf_light + (1.0 - a) * _np(bsdf_pdf_light)
+            p_light = _np(light.pdf)
+            mis_light = np.where(
+                _np(light.delta),
+                1.0,
+                p_light**2 / np.maximum(p_light**2 + q_light**2, 1e-30),
+            )
+            nee_np = _soa(nee).astype(np.float64) * mis_light[:, None]
+            nee_np[~smooth_np] = 0.0
+            radiance += throughput * nee_np
+            if record:
+                paths.add_radiance(handle, np.ascontiguousarray(nee_np, np.float32), smooth_np)
+            # The direction: the guide's with probability a, else the BSDF's.
+            choose = guidable_np & (rng.random(n) < a)
+            guide_d, guide_pdf_drawn = field.sample(x, rng.random((n, 2), dtype=np.float32), n_sh)
+            bs_d = _soa(bs_direction)
+            direction = np.where(choose[:, None], guide_d, bs_d)
+            delta_np = _np(bs_delta) & ~choose & go_on_np
+            scatter = go_on_np & ~delta_np & (smooth_np | choose)
+            f_d, bsdf_pdf_d = bsdf.eval_pdf(ctx, si, si.to_local(_vec(direction)), mi.Bool(scatter))
+            dr.eval(f_d, bsdf_pdf_d)
+            f_np = _soa(f_d)
+            bsdf_pdf_np = _np(bsdf_pdf_d).astype(np.float32)
+            guide_pdf_d = np.where(choose, guide_pdf_drawn, field.pdf(x, direction, n_sh))
+            q = a * guide_pdf_d + (1.0 - a) * bsdf_pdf_np
+            scatter &= q > 0.0
+            weight = np.zeros((n, 3), np.float64)
+            weight[scatter] = f_np[scatter] / q[scatter, None]
+            weight[delta_np] = _soa(bs_weight)[delta_np]
+            if record:
+                pushed = paths.push(
+                    handle,
+                    x,
+                    direction,
+                    f_np,
+                    np.where(scatter, q, 1.0).astype(np.float32),
+                    normals=n_sh,
+                    bsdf_pdfs=bsdf_pdf_np,
+                    guide_pdfs=guide_pdf_d.astype(np.float32),
+                    active=scatter,
+                )
+                pushed_delta = paths.push_delta(handle, x, _soa(bs_weight), active=delta_np)
+                handle = np.where(delta_np, pushed_delta, pushed)
+            throughput *= weight
+            active = (scatter | delta_np) & (throughput.max(axis=1) > 0.0)
+            if depth + 1 >= self.rr_depth:
+                p = np.minimum(throughput.max(axis=1), 0.95)
+                survived = rng.random(n) < p
+                if record:
+                    paths.roulette(
+                        handle, np.maximum(p, 1e-30).astype(np.float32), survived, active
+                    )
+                throughput[active & survived] /= p[active & survived, None]
+                active &= survived
+            ray = si.spawn_ray(_vec(direction))
+            prev_si = si
+            prev_q = mi.Float(np.where(scatter, q, 0.0).astype(np.float32))
+            prev_delta = mi.Bool(delta_np)
+        recorded = None
+        if record:
+            recorded = paths.finish()
+            paths.record(field)
+        if estimates:
+            return radiance, recorded
+        return radiance.reshape(width * height, spp, 3).sum(axis=1)
+
+
+def register(name: str = "sdguide"):
+    """Registers the guided tracer as the Mitsuba integrator plugin ``name``: its properties
+    are ``max_depth``, ``rr_depth``, ``guided``, ``training_passes`` and ``rule``
+    (:class:`GuidedPathTracer`); ``mi.render`` then trains and renders with the spp it is
+    given. Needs a variant set."""
+
+    class SdguideIntegrator(mi.SamplingIntegrator):
+        def __init__(self, props):
+            super().__init__(props)
+            get = (
+                props.get if hasattr(props, "get") else (lambda k, d: props[k] if k in props else d)
+            )
+            config = {}
+            if "rule" in props:
+                config["rule"] = props["rule"]
+            self.tracer = GuidedPathTracer(
+                max_depth=int(get("max_depth", 8)),
+                rr_depth=int(get("rr_depth", 5)),
+                guided=bool(get("guided", True)),
+                training_passes=int(get("training_passes", 5)),
+                **config,
+            )
+            self.field = None
+
+        def render(self, scene, sensor=None, seed=0, spp=0, develop=True, evaluate=True):
+            if sensor is None or isinstance(sensor, int):
+                sensor = scene.sensors()[sensor or 0]
+            spp = spp or sensor.sampler().sample_count()
+            image, self.field, _ = self.tracer.render(scene, spp, seed=seed, sensor=sensor)
+            return mi.TensorXf(image)
+
+        def to_string(self):
+            return f"SdguideIntegrator[max_depth={self.tracer.max_depth}]"
+
+    mi.register_integrator(name, lambda props: SdguideIntegrator(props))
+
+
+def relative_mse(image: np.ndarray, reference: np.ndarray, eps: float = 1e-2) -> float:
+    """Mean over pixels and channels of ``(image − reference)² / (reference² + eps)``."""
+    return float(np.mean((image - reference) ** 2 / (reference**2 + eps)))
+
+
+__all__ = ["GuidedPathTracer", "RenderInfo", "register", "relative_mse", "set_variant", "MAX_LANES"]

@@ -1,0 +1,29 @@
+//! The Python extension module `sdguide._sdguide`: the library's field and path recorder over
+//! numpy arrays, for wavefront renderers and Mitsuba 3. The Python package `sdguide` re-exports
+//! it (`python/sdguide/__init__.py`); its documentation is `python/README.md`.
+//!
+//! - `arrays`: what a batch call accepts (C-contiguous `float32` arrays of documented shapes)
+//!   and returns.
+//! - `field`: `GuidingField` — queries and `record` over lanes, refine, cache, merge, stats.
+//! - `path`: `PathRecorderBatch` — one path recorder per lane, driven a bounce at a time.
+//! - `errors`: the typed exceptions.
+
+mod arrays;
+mod errors;
+mod field;
+mod path;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _sdguide(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<field::PyGuidingField>()?;
+    m.add_class::<path::PyPathRecorderBatch>()?;
+    errors::register(m)?;
+    m.add(
+        "FORMAT_VERSION",
+        (sdguide::FORMAT_MAJOR, sdguide::FORMAT_MINOR),
+    )?;
+    m.add("NO_VERTEX", u32::MAX)?;
+    Ok(())
+}
