@@ -1,15 +1,15 @@
-"""Mitsuba 3 scenes rendered with Mitsuba's `path`, the wavefront tracer with the guide off,
-and the guided wavefront tracer: relMSE per sample and at equal time, bias against the
-reference, images. Writes `report.md`, EXR and PNG images to `--out`.
+"""Mitsuba 3 scenes rendered with Mitsuba's `path` and with the wavefront tracer
+(`sdguide.mitsuba`), the guide off or on, with classic roulette or the library's
+efficiency-aware roulette and splitting: relMSE per sample and at equal time, the images'
+means against the reference's, images. Writes `report.md`, EXR and PNG images to `--out`.
 
     python examples/mitsuba_compare.py --out out/mitsuba            # the documented run
-    python examples/mitsuba_compare.py --short --out out/mitsuba    # a minute, for CI
+    python examples/mitsuba_compare.py --short --out out/mitsuba    # a minute or two, for CI
 
 The reference is Mitsuba's `path` at `--reference-spp` (saved beside the report and reused).
-"Per sample": every method's final image at `--spp` samples per pixel (the guided tracer
-trains first, on 1 + 2 + … + 2^(passes−1) spp more, reported). "Equal time": every method gets
-`--time` seconds, the guided tracer's training included. Each is repeated over `--seeds`.
-"""
+"Per sample": every method's final image at `--spp` camera samples per pixel (those that learn
+train first, on 1 + 2 + … + 2^(passes−1) spp more). "Equal time": every method gets `--time`
+seconds, training included. Each is repeated over `--seeds`."""
 
 from __future__ import annotations
 
@@ -65,9 +65,20 @@ def reference(mi, name, scene, spp, out):
     return image, chunk_means
 
 
+#: The methods compared: Mitsuba's own `path`, then the wavefront tracer's four settings.
+METHODS = {
+    "path": ("Mitsuba `path`", None),
+    "off": ("guide off, classic roulette", {"guided": False}),
+    "off-ears": ("guide off, EARS", {"guided": False, "roulette": "ears"}),
+    "guided": ("guided, classic roulette", {"guided": True}),
+    "guided-ears": ("guided, EARS", {"guided": True, "roulette": "ears"}),
+}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="cornell,hidden,door,glossy")
+    parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--spp", type=int, default=32)
     parser.add_argument("--time", type=float, default=30.0, help="seconds per method")
@@ -80,6 +91,7 @@ def main(argv=None) -> int:
     if args.short:
         args.size, args.spp, args.time, args.seeds = 32, 4, 3.0, 1
         args.passes, args.reference_spp = 3, 1024
+    methods = args.methods.split(",")
     os.makedirs(args.out, exist_ok=True)
     set_variant("llvm_ad_rgb")
     import mitsuba as mi
@@ -90,14 +102,17 @@ def main(argv=None) -> int:
         "# sdguide in Mitsuba 3",
         "",
         f"Mitsuba {mi.__version__}, variant `{mi.variant()}`; {args.size}×{args.size} pixels, "
-        f"{args.seeds} seed(s); reference: `path` at {args.reference_spp} spp. Per sample: "
-        f"{args.spp} spp (the guided tracer trains {args.passes} passes first: "
-        f"{(1 << args.passes) - 1} spp). Equal time: {args.time:g} s per method, training "
-        "included. relMSE: mean of (I − R)²/(R² + 0.01) over pixels and channels; ratios are "
-        "against the wavefront tracer with the guide off (same tracer, same roulette).",
+        f"seeds 1–{args.seeds}; reference: `path` at {args.reference_spp} spp. The wavefront "
+        "tracer (`sdguide.mitsuba`) with the guide off or on, with classic roulette or the "
+        "library's efficiency-aware roulette and splitting (EARS); those that learn train "
+        f"{args.passes} passes first ({(1 << args.passes) - 1} spp). Per sample: the final "
+        f"render at {args.spp} camera samples per pixel (EARS traces more rays per sample: "
+        f"compare it at equal time). Equal time: {args.time:g} s per method, training "
+        "included. relMSE: mean of (I − R)²/(R² + 0.01) over pixels and channels, mean ± "
+        "standard deviation over seeds; ratios against the guide off with classic roulette.",
         "",
-        "| scene | method | relMSE per sample | ratio | relMSE equal time | ratio "
-        "| spp in the time | seconds | mean − reference (σ) |",
+        "| scene | method | relMSE per sample | ratio | rays per sample | relMSE equal time "
+        "| ratio | spp in the time | mean − reference (σ) |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     verdicts = []
@@ -106,77 +121,92 @@ def main(argv=None) -> int:
         max_depth = scenes.build(name, 8)["integrator"]["max_depth"]
         ref, ref_chunks = reference(mi, name, scene, args.reference_spp, args.out)
         ref_mean, ref_error = mean_and_error(ref_chunks)
-        off = GuidedPathTracer(max_depth=max_depth, guided=False)
-        on = GuidedPathTracer(max_depth=max_depth, guided=True, training_passes=args.passes)
+        tracers = {
+            key: GuidedPathTracer(max_depth=max_depth, training_passes=args.passes, **kw)
+            for key, (_, kw) in METHODS.items()
+            if kw is not None and key in methods
+        }
         # Warm Dr.Jit's kernel cache, so that no method pays for compiling in the timed runs.
-        off.render(scene, 1, seed=999)
-        on.render(scene, 1, seed=999)
+        for tracer in tracers.values():
+            tracer.render(scene, 1, seed=999)
         render_path(mi, scene, 1, 999)
         results = {
-            m: {"sample": [], "time": [], "spp": [], "seconds": [], "bias": []}
-            for m in ("path", "off", "on")
+            key: {"sample": [], "time": [], "spp": [], "bias": [], "rays": []} for key in methods
         }
         images = {}
         for seed in range(1, args.seeds + 1):
-            image, _, _ = render_path(mi, scene, args.spp, seed)
-            results["path"]["sample"].append(relative_mse(image, ref))
-            t = time.perf_counter()
-            render_path(mi, scene, 1, seed + 500)
-            chunk = max(1, int(0.5 / max(time.perf_counter() - t, 1e-4)))
-            image, seconds, spp = render_path(mi, scene, None, seed, budget=args.time, chunk=chunk)
-            results["path"]["time"].append(relative_mse(image, ref))
-            results["path"]["spp"].append(spp)
-            results["path"]["seconds"].append(seconds)
-            images.setdefault("path", image)
-            for key, tracer in (("off", off), ("on", on)):
+            for key in methods:
+                r = results[key]
+                if key == "path":
+                    image, _, _ = render_path(mi, scene, args.spp, seed)
+                    r["sample"].append(relative_mse(image, ref))
+                    t = time.perf_counter()
+                    render_path(mi, scene, 1, seed + 500)
+                    chunk = max(1, int(0.5 / max(time.perf_counter() - t, 1e-4)))
+                    image, _, spp = render_path(
+                        mi, scene, None, seed, budget=args.time, chunk=chunk
+                    )
+                    r["time"].append(relative_mse(image, ref))
+                    r["spp"].append(spp)
+                    images.setdefault(key, image)
+                    continue
+                tracer = tracers[key]
                 image, _, info = tracer.render(scene, args.spp, seed=seed, waves=4)
-                results[key]["sample"].append(relative_mse(image, ref))
+                r["sample"].append(relative_mse(image, ref))
+                r["rays"].append(info.rays_per_sample)
                 mean, error = mean_and_error(info.wave_means)
                 z = (mean - ref_mean) / np.sqrt(error**2 + ref_error**2)
-                results[key]["bias"].append(float(np.max(np.abs(z))))
+                r["bias"].append(float(np.max(np.abs(z))))
                 wave = max(1, args.spp // 4)
                 image, _, info = tracer.render(scene, wave, seed=seed + 1000, budget=args.time)
-                results[key]["time"].append(relative_mse(image, ref))
-                results[key]["spp"].append(wave * len(info.wave_means))
-                results[key]["seconds"].append(info.seconds)
+                r["time"].append(relative_mse(image, ref))
+                r["spp"].append(wave * len(info.wave_means))
                 images.setdefault(key, image)
-        base_sample = np.mean(results["off"]["sample"])
-        base_time = np.mean(results["off"]["time"])
-        labels = {"path": "Mitsuba `path`", "off": "wavefront, guide off", "on": "sdguide guided"}
-        for key in ("path", "off", "on"):
+        base = results.get("off") or results[methods[0]]
+        base_sample, base_time = np.mean(base["sample"]), np.mean(base["time"])
+        for key in methods:
             r = results[key]
             s, tm = np.array(r["sample"]), np.array(r["time"])
             bias = f"{max(r['bias']):.1f}" if r["bias"] else "—"
+            rays = f"{np.mean(r['rays']):.2f}" if r["rays"] else "—"
             lines.append(
-                f"| {name} | {labels[key]} | {s.mean():.4g} ± {s.std():.2g} "
-                f"| {s.mean() / base_sample:.2f} "
+                f"| {name} | {METHODS[key][0]} | {s.mean():.4g} ± {s.std():.2g} "
+                f"| {s.mean() / base_sample:.2f} | {rays} "
                 f"| {tm.mean():.4g} ± {tm.std():.2g} | {tm.mean() / base_time:.2f} "
-                f"| {np.mean(r['spp']):.0f} | {np.mean(r['seconds']):.1f} | {bias} |"
+                f"| {np.mean(r['spp']):.0f} | {bias} |"
             )
-        on_time = np.mean(results["on"]["time"])
-        verdicts.append(
-            f"- **{name}**: guided at equal time {on_time / base_time:.2f}× the guide off, "
-            f"{on_time / np.mean(results['path']['time']):.2f}× Mitsuba's `path`; "
-            f"per sample {np.mean(results['on']['sample']) / base_sample:.2f}×."
-        )
-        strip = np.concatenate([ref, images["path"], images["off"], images["on"]], axis=1)
+            print(lines[-1], flush=True)
+        if "guided-ears" in results and "off-ears" in results:
+            best = np.mean(results["guided-ears"]["time"])
+            verdicts.append(
+                f"- **{name}**: guided with EARS at equal time {best / base_time:.2f}× the guide "
+                f"off with classic roulette, {best / np.mean(results['off-ears']['time']):.2f}× "
+                "the guide off with EARS"
+                + (
+                    f", {best / np.mean(results['path']['time']):.2f}× Mitsuba's `path`."
+                    if "path" in results
+                    else "."
+                )
+            )
+        strip = np.concatenate([ref] + [images[k] for k in methods], axis=1)
         mi.util.write_bitmap(
             os.path.join(args.out, f"{name}-compare.png"), strip.astype(np.float32)
         )
-        mi.util.write_bitmap(
-            os.path.join(args.out, f"{name}-guided.exr"), images["on"].astype(np.float32)
-        )
-        print(lines[-3], lines[-2], lines[-1], sep="\n", flush=True)
+        if "guided-ears" in images:
+            mi.util.write_bitmap(
+                os.path.join(args.out, f"{name}-guided-ears.exr"),
+                images["guided-ears"].astype(np.float32),
+            )
     lines += [
         "",
-        "The last column: the largest over channels of |mean of the image − mean of the reference| "
-        "in standard errors (of four waves, and of the reference's 16 chunks).",
+        "The last column: the largest over channels of |mean of the image − mean of the "
+        "reference| in standard errors (of four waves, and of the reference's 16 chunks).",
         "",
         "**Verdict.**",
         *verdicts,
         "",
-        "Images (`<scene>-compare.png`): reference, `path`, guide off, guided — equal time, "
-        "seed 1.",
+        "Images (`<scene>-compare.png`): the reference, then each method at equal time "
+        f"({', '.join(methods)}), seed 1.",
     ]
     with open(os.path.join(args.out, "report.md"), "w") as report:
         report.write("\n".join(lines) + "\n")

@@ -33,8 +33,10 @@ from ._sdguide import (
     CacheError,
     ConfigError,
     GuidingField,
+    ImageStatistics,
     MergeError,
     PathRecorderBatch,
+    continuations,
 )
 
 __all__ = [
@@ -43,6 +45,8 @@ __all__ = [
     "CacheError",
     "ConfigError",
     "GuidingField",
+    "ImageStatistics",
     "MergeError",
     "PathRecorderBatch",
+    "continuations",
 ]

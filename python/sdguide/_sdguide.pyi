@@ -63,6 +63,19 @@ class GuidingField:
     ) -> int:
         """Records one sample per lane; returns how many were rejected (counted in
         ``stats()["rejected"]``, never raised)."""
+    def splitting_factor(
+        self,
+        positions: F32,
+        throughputs: F32,
+        pixels: U32,
+        image: ImageStatistics,
+        *,
+        mode: str = "splitting",
+        min_survival: float = 0.05,
+        max_splits: float = 8.0,
+    ) -> F32:
+        """The efficiency-aware factor per vertex (``"roulette"``: at most 1); NaN where
+        there is none yet."""
     def refine(self) -> None:
         """Ends an iteration: learns from what was recorded since the last ``refine``."""
     def merge(self, other: GuidingField) -> None:
@@ -90,16 +103,22 @@ class GuidingField:
         """Refinements so far."""
 
 class PathRecorderBatch:
-    """One path recorder per lane, driven a bounce at a time; see the package README."""
+    """One path recorder per camera sample, driven a bounce at a time. Lane ``i`` belongs to
+    path ``i``, or with ``paths`` (sorted ``uint32``) to path ``paths[i]``: a split's
+    continuations are more lanes of their path. See the package README."""
 
-    def __init__(self, lanes: int, max_vertices: int = 4096) -> None: ...
+    def __init__(self, paths: int, max_vertices: int = 4096) -> None: ...
     def __len__(self) -> int: ...
     def start(self) -> U32:
-        """Starts a camera sample on every lane; returns the camera rays' handles."""
-    def add_radiance(self, at: U32, radiance: F32, active: Mask | None = None) -> None:
+        """Starts a camera sample on every path; returns the camera rays' handles."""
+    def add_radiance(
+        self, at: U32, radiance: F32, *, paths: U32 | None = None, active: Mask | None = None
+    ) -> None:
         """Radiance (RGB) arriving at ``at[i]`` along its direction."""
-    def add_cost(self, at: U32, costs: F32, active: Mask | None = None) -> None:
-        """A cost spent tracing for ``at[i]``."""
+    def add_cost(
+        self, at: U32, costs: F32, *, paths: U32 | None = None, active: Mask | None = None
+    ) -> None:
+        """A cost (rays) spent tracing for ``at[i]``."""
     def push(
         self,
         at: U32,
@@ -112,18 +131,69 @@ class PathRecorderBatch:
         bsdf_pdfs: F32 | None = None,
         guide_pdfs: F32 | None = None,
         volume: Mask | None = None,
+        paths: U32 | None = None,
         active: Mask | None = None,
     ) -> U32:
         """A direction drawn at the vertex the ray of ``at[i]`` reached; returns its handle."""
-    def push_delta(self, at: U32, positions: F32, weights: F32, active: Mask | None = None) -> U32:
+    def push_delta(
+        self,
+        at: U32,
+        positions: F32,
+        weights: F32,
+        *,
+        paths: U32 | None = None,
+        active: Mask | None = None,
+    ) -> U32:
         """A delta (specular) vertex of weight ``weights[i]``; returns its handle."""
     def roulette(
-        self, at: U32, probabilities: F32, survived: Mask, active: Mask | None = None
+        self,
+        at: U32,
+        probabilities: F32,
+        survived: Mask,
+        *,
+        paths: U32 | None = None,
+        active: Mask | None = None,
     ) -> None:
         """Russian roulette on the path along ``at[i]``."""
+    def split(
+        self,
+        at: U32,
+        factors: F32,
+        traced: U32,
+        *,
+        paths: U32 | None = None,
+        active: Mask | None = None,
+    ) -> None:
+        """``traced[i]`` continuations for the factor ``factors[i]`` at the vertex the ray of
+        ``at[i]`` reached; each pushed after this weighs ``1/factors[i]``."""
     def finish(self) -> F32:
-        """Ends every lane's camera sample; returns the estimates, ``(N, 3)``."""
+        """Ends every path's camera sample; returns the estimates, ``(P, 3)``."""
     def record(self, field: GuidingField) -> int:
         """Records the finished paths into ``field``; returns the vertices recorded."""
     def stats(self) -> dict[str, int]:
-        """The recorders' counts of paths and of bad input, summed over the lanes."""
+        """The recorders' counts of paths, bad input and factors, summed over the paths."""
+
+class ImageStatistics:
+    """A render's camera samples per pixel over its passes, and the image terms of the
+    efficiency-aware factor they give for the next pass."""
+
+    def __init__(self, width: int, height: int, epsilon: float = 0.01) -> None: ...
+    def add(self, pixels: U32, values: F32, costs: F32) -> None:
+        """Adds camera samples: luminance ``values[i]`` costing ``costs[i]`` rays in
+        ``pixels[i]``."""
+    def end_pass(self) -> None:
+        """Ends the pass: with at least 4 samples per pixel it sets the next factors."""
+    def set_estimate(self, estimate: F32 | None = None) -> None:
+        """The pixels' estimated luminance ``(H·W,)``, or ``None``: the samples' mean."""
+    def pixel_values(self) -> F32:
+        """``P = sqrt(Ĩ² + ε)`` per pixel, ``(H·W,)``."""
+    @property
+    def relative_variance(self) -> float | None: ...
+    @property
+    def cost_per_sample(self) -> float | None: ...
+    @property
+    def passes(self) -> int: ...
+
+def continuations(factors: F32, u: F32) -> tuple[U32, F32]:
+    """How many continuations each factor traces (stochastic rounding with ``u``) and the
+    weight ``1/q`` each carries; NaN: one, weight 1."""

@@ -6,6 +6,7 @@
 
 use crate::arrays::{Input, input, optional, vec3_output};
 use crate::errors::{cache_error, config_error, merge_error};
+use crate::image::PyImageStatistics;
 use glam::Vec3;
 use numpy::{PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
@@ -262,6 +263,39 @@ impl PyGuidingField {
                 .collect();
             field.record_batch(&samples)
         }))
+    }
+
+    /// The efficiency-aware factor `q` at each vertex: from the continuation estimate of the
+    /// cell at `positions[i]`, the throughput weight `throughputs[i]` (a luminance, every
+    /// earlier `1/q` included) and the pixel `pixels[i]` (`uint32`) of `image`; in
+    /// `[min_survival, 1]` under `mode="roulette"`, up to `max_splits` under `"splitting"`.
+    /// NaN where there is no factor (the cell has too few continuations, the image no pass
+    /// with enough samples yet, a bad throughput): play your own roulette there.
+    #[pyo3(signature = (positions, throughputs, pixels, image, *, mode = "splitting",
+        min_survival = 0.05, max_splits = 8.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn splitting_factor<'py>(
+        &self,
+        py: Python<'py>,
+        positions: &Bound<'py, PyAny>,
+        throughputs: &Bound<'py, PyAny>,
+        pixels: &Bound<'py, PyAny>,
+        image: &PyImageStatistics,
+        mode: &str,
+        min_survival: f32,
+        max_splits: f32,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        crate::image::splitting_factor(
+            &self.inner,
+            py,
+            positions,
+            throughputs,
+            pixels,
+            image,
+            mode,
+            min_survival,
+            max_splits,
+        )
     }
 
     /// Learns from what was recorded since the last `refine`: new spatial and directional

@@ -6,11 +6,14 @@
 //!   and returns.
 //! - `field`: `GuidingField` — queries and `record` over lanes, refine, cache, merge, stats.
 //! - `path`: `PathRecorderBatch` — one path recorder per lane, driven a bounce at a time.
+//! - `image`: `ImageStatistics`, the splitting factor over lanes and `continuations`: the
+//!   efficiency-aware roulette and splitting.
 //! - `errors`: the typed exceptions.
 
 mod arrays;
 mod errors;
 mod field;
+mod image;
 mod path;
 
 use pyo3::prelude::*;
@@ -19,6 +22,8 @@ use pyo3::prelude::*;
 fn _sdguide(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<field::PyGuidingField>()?;
     m.add_class::<path::PyPathRecorderBatch>()?;
+    m.add_class::<image::PyImageStatistics>()?;
+    m.add_function(wrap_pyfunction!(image::continuations, m)?)?;
     errors::register(m)?;
     m.add(
         "FORMAT_VERSION",

@@ -1,15 +1,19 @@
-//! `sdguide.PathRecorderBatch`: the library's path recorder, one per lane, driven a bounce at
-//! a time by a wavefront renderer.
+//! `sdguide.PathRecorderBatch`: the library's path recorder, one per camera sample, driven a
+//! bounce at a time by a wavefront renderer.
 //!
-//! Lane `i` is one camera sample; each call reports the same event for every active lane
-//! (`active[i]`, default all) with that lane's arguments, and a vertex is named by the handle
-//! `push` returned for it (`uint32`; the camera ray's comes from `start`). An inactive lane
-//! gets the handle `NO_VERTEX` back and is left alone. The recorders run in parallel with the
-//! GIL released, and each does exactly what the one-path recorder does.
+//! Each call reports one event for every active lane (`active[i]`, default all) with that
+//! lane's arguments; a vertex is named by the handle `push` returned for it (`uint32`; the
+//! camera ray's comes from `start`). Lane `i` belongs to path `i`, or with `paths`, to path
+//! `paths[i]`: a renderer that splits traces several lanes of one path (`paths` must then be
+//! sorted, which keeping lanes in order after `np.repeat` and masks does). An inactive lane gets
+//! the handle `NO_VERTEX` back and is left alone. The paths run in parallel with the GIL
+//! released, each path's lanes in order, and each recorder does exactly what the one-path
+//! recorder does.
 
 use crate::arrays::{Input, input, optional, vec3_output};
 use crate::field::PyGuidingField;
 use numpy::{PyArray1, PyArray2};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
@@ -18,54 +22,118 @@ use sdguide::{PathRecorder, PathVertex, VertexId};
 /// The handle returned for an inactive lane.
 const NO_VERTEX: u32 = u32::MAX;
 
-/// One path recorder per lane (a camera sample each), reused from pass to pass.
+/// One path recorder per camera sample, reused from pass to pass.
 #[pyclass(name = "PathRecorderBatch", module = "sdguide")]
 pub struct PyPathRecorderBatch {
-    lanes: Vec<PathRecorder>,
+    paths: Vec<PathRecorder>,
 }
 
-/// The per-call inputs every event takes: the handles and the mask.
+/// The per-call inputs every event takes: the handles, the lanes' paths and the mask.
 struct Lanes<'py> {
     at: Input<'py, u32>,
+    /// Where each path's lanes start and end (`bounds[p]..bounds[p + 1]`), with `paths`.
+    bounds: Option<Vec<usize>>,
     active: Option<Input<'py, bool>>,
 }
 
 impl<'py> Lanes<'py> {
-    fn new(n: usize, at: &Bound<'py, PyAny>, active: Option<&Bound<'py, PyAny>>) -> PyResult<Self> {
+    fn new(
+        recorders: usize,
+        at: &Bound<'py, PyAny>,
+        paths: Option<&Bound<'py, PyAny>>,
+        active: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Self> {
+        let lanes = match paths {
+            Some(p) if !p.is_none() => None,
+            _ => Some(recorders),
+        };
+        let at: Input<u32> = input(at, "at", lanes, None)?;
+        let n = at.slice().len();
+        let paths: Option<Input<u32>> = optional(paths, "paths", n, None)?;
+        let bounds = paths
+            .map(|p| run_bounds(p.slice(), recorders))
+            .transpose()?;
         Ok(Self {
-            at: input(at, "at", Some(n), None)?,
+            at,
+            bounds,
             active: optional(active, "active", n, None)?,
         })
     }
 
-    /// `(handle, active)` of every lane.
-    fn views(&self) -> (&[u32], Option<&[bool]>) {
-        (self.at.slice(), self.active.as_ref().map(|a| a.slice()))
+    fn len(&self) -> usize {
+        self.at.slice().len()
     }
 }
 
+/// The start of each path's run of lanes in `paths` (sorted, each below `recorders`), and the
+/// end of the last: `recorders + 1` offsets.
+fn run_bounds(paths: &[u32], recorders: usize) -> PyResult<Vec<usize>> {
+    if paths.windows(2).any(|w| w[0] > w[1]) {
+        return Err(PyValueError::new_err(
+            "`paths` must be sorted (non-decreasing)",
+        ));
+    }
+    if paths.last().is_some_and(|&p| p as usize >= recorders) {
+        return Err(PyValueError::new_err(format!(
+            "`paths` holds a path index beyond the {recorders} paths"
+        )));
+    }
+    let mut bounds = vec![0usize; recorders + 1];
+    for &p in paths {
+        bounds[p as usize + 1] += 1;
+    }
+    for i in 1..bounds.len() {
+        bounds[i] += bounds[i - 1];
+    }
+    Ok(bounds)
+}
+
 impl PyPathRecorderBatch {
-    /// Runs `f(lane, recorder, handle)` on every active lane in parallel, with the GIL
-    /// released; returns what each lane gave (`NO_VERTEX` for inactive ones).
+    /// Runs `f(lane, recorder, handle)` on every active lane, the paths in parallel and each
+    /// path's lanes in order, with the GIL released; returns what each lane gave (`NO_VERTEX`
+    /// for inactive ones).
     fn each<F>(&mut self, py: Python<'_>, lanes: &Lanes<'_>, f: F) -> Vec<u32>
     where
         F: Fn(usize, &mut PathRecorder, VertexId) -> u32 + Sync + Send,
     {
-        let (at, active) = lanes.views();
-        let recorders = &mut self.lanes;
+        let at = lanes.at.slice();
+        let active = lanes.active.as_ref().map(|a| a.slice());
+        let bounds = lanes.bounds.as_deref();
+        let recorders = &mut self.paths;
+        let mut out = vec![NO_VERTEX; lanes.len()];
         py.detach(|| {
-            recorders
-                .par_iter_mut()
-                .enumerate()
-                .map(|(i, r)| {
-                    if active.is_none_or(|a| a[i]) {
-                        f(i, r, VertexId::from_index(at[i]))
-                    } else {
-                        NO_VERTEX
+            let lane = |i: usize, r: &mut PathRecorder, o: &mut u32| {
+                if active.is_none_or(|a| a[i]) {
+                    *o = f(i, r, VertexId::from_index(at[i]));
+                }
+            };
+            match bounds {
+                None => recorders
+                    .par_iter_mut()
+                    .zip(out.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(i, (r, o))| lane(i, r, o)),
+                Some(bounds) => {
+                    let mut runs = Vec::with_capacity(recorders.len());
+                    let mut rest = out.as_mut_slice();
+                    for w in bounds.windows(2) {
+                        let (run, tail) = rest.split_at_mut(w[1] - w[0]);
+                        runs.push(run);
+                        rest = tail;
                     }
-                })
-                .collect()
-        })
+                    recorders
+                        .par_iter_mut()
+                        .zip(runs.into_par_iter())
+                        .enumerate()
+                        .for_each(|(p, (r, run))| {
+                            for (k, o) in run.iter_mut().enumerate() {
+                                lane(bounds[p] + k, r, o);
+                            }
+                        });
+                }
+            }
+        });
+        out
     }
 }
 
@@ -75,23 +143,23 @@ fn handles(id: VertexId) -> u32 {
 
 #[pymethods]
 impl PyPathRecorderBatch {
-    /// `lanes` recorders, each holding up to `max_vertices` vertices per path.
+    /// `paths` recorders (camera samples), each holding up to `max_vertices` vertices.
     #[new]
-    #[pyo3(signature = (lanes, max_vertices = PathRecorder::DEFAULT_MAX_VERTICES))]
-    fn new(lanes: usize, max_vertices: usize) -> Self {
+    #[pyo3(signature = (paths, max_vertices = PathRecorder::DEFAULT_MAX_VERTICES))]
+    fn new(paths: usize, max_vertices: usize) -> Self {
         Self {
-            lanes: vec![PathRecorder::with_max_vertices(max_vertices); lanes],
+            paths: vec![PathRecorder::with_max_vertices(max_vertices); paths],
         }
     }
 
-    /// The number of lanes.
+    /// The number of paths.
     fn __len__(&self) -> usize {
-        self.lanes.len()
+        self.paths.len()
     }
 
-    /// Starts a camera sample on every lane: returns the camera rays' handles, `(N,)` `uint32`.
+    /// Starts a camera sample on every path: returns the camera rays' handles, `(P,)`.
     fn start<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<u32>> {
-        let recorders = &mut self.lanes;
+        let recorders = &mut self.paths;
         let ids: Vec<u32> = py.detach(|| {
             recorders
                 .par_iter_mut()
@@ -104,16 +172,17 @@ impl PyPathRecorderBatch {
     /// Radiance `radiance[i]` (RGB, `(N, 3)`) arriving at `at[i]` along its direction:
     /// emission the ray of `at[i]` hit (with its MIS weight) and next-event contributions at
     /// the vertex it reached, not multiplied by anything before them.
-    #[pyo3(signature = (at, radiance, active = None))]
+    #[pyo3(signature = (at, radiance, *, paths = None, active = None))]
     fn add_radiance(
         &mut self,
         py: Python<'_>,
         at: &Bound<'_, PyAny>,
         radiance: &Bound<'_, PyAny>,
+        paths: Option<&Bound<'_, PyAny>>,
         active: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
-        let lanes = Lanes::new(self.lanes.len(), at, active)?;
-        let radiance: Input<f32> = input(radiance, "radiance", Some(self.lanes.len()), Some(3))?;
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let radiance: Input<f32> = input(radiance, "radiance", Some(lanes.len()), Some(3))?;
         let l = radiance.vec3s();
         self.each(py, &lanes, |i, r, v| {
             r.add_radiance(v, l[i]);
@@ -123,16 +192,17 @@ impl PyPathRecorderBatch {
     }
 
     /// A cost (rays, say) spent tracing for `at[i]`.
-    #[pyo3(signature = (at, costs, active = None))]
+    #[pyo3(signature = (at, costs, *, paths = None, active = None))]
     fn add_cost(
         &mut self,
         py: Python<'_>,
         at: &Bound<'_, PyAny>,
         costs: &Bound<'_, PyAny>,
+        paths: Option<&Bound<'_, PyAny>>,
         active: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
-        let lanes = Lanes::new(self.lanes.len(), at, active)?;
-        let costs: Input<f32> = input(costs, "costs", Some(self.lanes.len()), None)?;
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let costs: Input<f32> = input(costs, "costs", Some(lanes.len()), None)?;
         let c = costs.slice();
         self.each(py, &lanes, |i, r, v| {
             r.add_cost(v, c[i]);
@@ -147,7 +217,7 @@ impl PyPathRecorderBatch {
     /// pdfs of the direction (`bsdf_pdfs`, `guide_pdfs`, both or neither), `volume` (bool).
     /// Returns the new vertices' handles.
     #[pyo3(signature = (at, positions, directions, bsdf, pdfs, *, normals = None,
-        bsdf_pdfs = None, guide_pdfs = None, volume = None, active = None))]
+        bsdf_pdfs = None, guide_pdfs = None, volume = None, paths = None, active = None))]
     #[allow(clippy::too_many_arguments)]
     fn push<'py>(
         &mut self,
@@ -161,10 +231,11 @@ impl PyPathRecorderBatch {
         bsdf_pdfs: Option<&Bound<'py, PyAny>>,
         guide_pdfs: Option<&Bound<'py, PyAny>>,
         volume: Option<&Bound<'py, PyAny>>,
+        paths: Option<&Bound<'py, PyAny>>,
         active: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<u32>>> {
-        let n = self.lanes.len();
-        let lanes = Lanes::new(n, at, active)?;
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let n = lanes.len();
         let positions: Input<f32> = input(positions, "positions", Some(n), Some(3))?;
         let directions: Input<f32> = input(directions, "directions", Some(n), Some(3))?;
         let bsdf: Input<f32> = input(bsdf, "bsdf", Some(n), Some(3))?;
@@ -177,7 +248,7 @@ impl PyPathRecorderBatch {
             (Some(b), Some(g)) => Some((b.slice(), g.slice())),
             (None, None) => None,
             _ => {
-                return Err(pyo3::exceptions::PyValueError::new_err(
+                return Err(PyValueError::new_err(
                     "`bsdf_pdfs` and `guide_pdfs` come together: both or neither",
                 ));
             }
@@ -208,17 +279,18 @@ impl PyPathRecorderBatch {
 
     /// A delta vertex (a specular bounce) at `positions[i]` with weight `weights[i]` (`f/p`,
     /// RGB): passes its weight on, records nothing. Returns the new handles.
-    #[pyo3(signature = (at, positions, weights, active = None))]
+    #[pyo3(signature = (at, positions, weights, *, paths = None, active = None))]
     fn push_delta<'py>(
         &mut self,
         py: Python<'py>,
         at: &Bound<'py, PyAny>,
         positions: &Bound<'py, PyAny>,
         weights: &Bound<'py, PyAny>,
+        paths: Option<&Bound<'py, PyAny>>,
         active: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<u32>>> {
-        let n = self.lanes.len();
-        let lanes = Lanes::new(n, at, active)?;
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let n = lanes.len();
         let positions: Input<f32> = input(positions, "positions", Some(n), Some(3))?;
         let weights: Input<f32> = input(weights, "weights", Some(n), Some(3))?;
         let (x, w) = (positions.vec3s(), weights.vec3s());
@@ -230,17 +302,18 @@ impl PyPathRecorderBatch {
 
     /// Russian roulette on the path along `at[i]`: it went on with probability
     /// `probabilities[i]` if `survived[i]`, else it ended there.
-    #[pyo3(signature = (at, probabilities, survived, active = None))]
+    #[pyo3(signature = (at, probabilities, survived, *, paths = None, active = None))]
     fn roulette(
         &mut self,
         py: Python<'_>,
         at: &Bound<'_, PyAny>,
         probabilities: &Bound<'_, PyAny>,
         survived: &Bound<'_, PyAny>,
+        paths: Option<&Bound<'_, PyAny>>,
         active: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
-        let n = self.lanes.len();
-        let lanes = Lanes::new(n, at, active)?;
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let n = lanes.len();
         let probabilities: Input<f32> = input(probabilities, "probabilities", Some(n), None)?;
         let survived: Input<bool> = input(survived, "survived", Some(n), None)?;
         let (p, s) = (probabilities.slice(), survived.slice());
@@ -251,10 +324,35 @@ impl PyPathRecorderBatch {
         Ok(())
     }
 
-    /// Ends every lane's camera sample: returns their estimates, `(N, 3)` (RGB, every
+    /// Roulette or splitting at the vertex the ray of `at[i]` reached: `traced[i]`
+    /// continuations for the factor `factors[i]` (see `continuations`), each pushed after this
+    /// weighing `1/factors[i]`. Push a split's continuations as lanes of the same path.
+    #[pyo3(signature = (at, factors, traced, *, paths = None, active = None))]
+    fn split(
+        &mut self,
+        py: Python<'_>,
+        at: &Bound<'_, PyAny>,
+        factors: &Bound<'_, PyAny>,
+        traced: &Bound<'_, PyAny>,
+        paths: Option<&Bound<'_, PyAny>>,
+        active: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<()> {
+        let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
+        let n = lanes.len();
+        let factors: Input<f32> = input(factors, "factors", Some(n), None)?;
+        let traced: Input<u32> = input(traced, "traced", Some(n), None)?;
+        let (k, t) = (factors.slice(), traced.slice());
+        self.each(py, &lanes, |i, r, v| {
+            r.split(v, k[i], t[i]);
+            0
+        });
+        Ok(())
+    }
+
+    /// Ends every path's camera sample: returns their estimates, `(P, 3)` (RGB, every
     /// weight applied).
     fn finish<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let recorders = &mut self.lanes;
+        let recorders = &mut self.paths;
         let estimates: Vec<f32> = py.detach(|| {
             recorders
                 .par_iter_mut()
@@ -267,7 +365,7 @@ impl PyPathRecorderBatch {
     /// Records every finished path into `field` (samples and continuations); returns how
     /// many vertices recorded.
     fn record(&self, py: Python<'_>, field: &PyGuidingField) -> usize {
-        let (recorders, field) = (&self.lanes, &field.inner);
+        let (recorders, field) = (&self.paths, &field.inner);
         py.detach(|| recorders.par_iter().map(|r| r.record(field)).sum())
     }
 
@@ -276,7 +374,7 @@ impl PyPathRecorderBatch {
     /// `PathRecorderStats`).
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let mut sum = [0u64; 7];
-        for r in &self.lanes {
+        for r in &self.paths {
             let s = r.stats();
             let counts = [
                 s.paths,

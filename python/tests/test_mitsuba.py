@@ -26,14 +26,17 @@ def image_mean_and_error(images):
     return means.mean(axis=0), means.std(axis=0, ddof=1) / np.sqrt(len(means))
 
 
-@pytest.mark.parametrize("name", ["hidden", "door", "glossy"])
-def test_guided_image_mean_is_within_four_sigma_of_paths(name):
+@pytest.mark.parametrize(
+    "name,roulette",
+    [("hidden", "classic"), ("hidden", "ears"), ("door", "ears"), ("glossy", "ears")],
+)
+def test_guided_image_mean_is_within_four_sigma_of_paths(name, roulette):
     # Both are unbiased estimators of the image mean: their difference, in standard errors
     # (8 independent waves each), is a normal deviate; 4σ fails once in 16 000 by chance.
     scene = mi.load_dict(scenes.build(name, 24))
     max_depth = scenes.build(name, 8)["integrator"]["max_depth"]
     path = [np.array(mi.render(scene, spp=64, seed=100 + i), np.float64) for i in range(8)]
-    tracer = GuidedPathTracer(max_depth=max_depth, training_passes=4)
+    tracer = GuidedPathTracer(max_depth=max_depth, training_passes=4, roulette=roulette)
     _, field, info = tracer.render(scene, spp=16, seed=1, waves=8)
     assert field.stats()["samples_recorded_total"] > 0
     reference, reference_error = image_mean_and_error(path)
@@ -53,7 +56,10 @@ def test_the_recorders_estimates_are_the_tracers():
     field = sdguide.GuidingField(*tracer._bounds(scene))
     rng = np.random.default_rng(3)
     sensor = scene.sensors()[0]
-    own, recorded = tracer._wave(scene, sensor, 16, 16, 2, rng, field, record=True, estimates=True)
+    image_stats = sdguide.ImageStatistics(16, 16)
+    own, _, recorded = tracer._wave(
+        scene, sensor, 16, 16, 2, rng, field, image_stats, record=True, estimates=True
+    )
     np.testing.assert_allclose(recorded, own, rtol=1e-3, atol=1e-5)
 
 

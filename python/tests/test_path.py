@@ -86,3 +86,80 @@ def test_bad_input_is_counted_or_refused():
         paths.roulette(v, f32([0.5] * n), np.ones(n, np.float32))  # survived must be bool
     with pytest.raises(ValueError):
         paths.push(at, x, d, d, pdf, bsdf_pdfs=pdf)  # the pair comes together
+
+
+def test_a_split_path_runs_as_several_lanes_of_its_path():
+    # Path 0 splits at its first vertex (factor 2, two continuations, each weighing 1/2) and
+    # its continuations bring 1 and 3; path 1 goes on once and brings 2. f·cos/pdf is 0.5.
+    paths = sdguide.PathRecorderBatch(2)
+    camera = paths.start()
+    paths.split(camera[:1], f32([2.0]), np.array([2], np.uint32), paths=np.array([0], np.uint32))
+    lane_path = np.array([0, 0, 1], np.uint32)
+    at = camera[lane_path]
+    x = f32(np.full((3, 3), 0.5))
+    d = f32(np.tile([0.0, 1.0, 0.0], (3, 1)))
+    v = paths.push(at, x, d, f32(np.full((3, 3), 0.5)), f32(np.ones(3)), paths=lane_path)
+    paths.add_radiance(v, f32(np.repeat([1.0, 3.0, 2.0], 3).reshape(3, 3)), paths=lane_path)
+    estimates = paths.finish()
+    np.testing.assert_allclose(estimates[:, 0], [0.5 * (1.0 + 3.0) / 2.0, 0.5 * 2.0], rtol=1e-6)
+    field = sdguide.GuidingField((0, 0, 0), (1, 1, 1))
+    assert paths.record(field) == 3
+    with pytest.raises(ValueError):
+        paths.add_radiance(v, f32(np.ones((3, 3))), paths=np.array([1, 0, 0], np.uint32))
+    with pytest.raises(ValueError):
+        paths.add_radiance(v, f32(np.ones((3, 3))), paths=np.array([0, 1, 2], np.uint32))
+
+
+def test_the_splitting_factor_needs_an_image_and_continuations():
+    field = sdguide.GuidingField((0, 0, 0), (1, 1, 1))
+    image = sdguide.ImageStatistics(2, 2)
+    x = f32(np.full((4, 3), 0.5))
+    pixels = np.arange(4, dtype=np.uint32)
+    ones = f32(np.ones(4))
+    # No pass yet, no continuations: no factor.
+    assert np.all(np.isnan(field.splitting_factor(x, ones, pixels, image)))
+    # A pass of 8 noisy samples per pixel and cells with continuations (from recorded paths:
+    # a vertex whose continuation brought 1 or 3) give factors in the documented bounds.
+    rng = np.random.default_rng(4)
+    for _ in range(8):
+        image.add(pixels, f32(rng.exponential(1.0, 4)), f32(np.full(4, 3.0)))
+    image.end_pass()
+    assert image.relative_variance > 0 and image.cost_per_sample == 3.0
+    n = 64
+    recorder = sdguide.PathRecorderBatch(n)
+    at = recorder.start()
+    v = recorder.push(
+        at,
+        f32(np.full((n, 3), 0.5)),
+        f32(np.tile([0.0, 0.0, 1.0], (n, 1))),
+        f32(np.full((n, 3), 0.5)),
+        f32(np.ones(n)),
+    )
+    recorder.add_radiance(v, f32(np.repeat(rng.choice([1.0, 3.0], n), 3).reshape(n, 3)))
+    recorder.add_cost(v, f32(np.ones(n)))
+    recorder.finish()
+    recorder.record(field)
+    field.refine()
+    for mode, top in (("roulette", 1.0), ("splitting", 8.0)):
+        q = field.splitting_factor(x, f32([0.0, 0.1, 1.0, 100.0]), pixels, image, mode=mode)
+        assert q[0] == pytest.approx(0.05)  # zero throughput: the smallest survival
+        assert np.all((q >= 0.05) & (q <= top)) and q[1] <= q[2] <= q[3]
+    assert field.splitting_factor(x, ones, pixels, image, mode="roulette")[0] <= 1.0
+    with pytest.raises(ValueError):
+        field.splitting_factor(x, ones, pixels, image, mode="sometimes")
+    with pytest.raises(sdguide.ConfigError):
+        field.splitting_factor(x, ones, pixels, image, min_survival=0.0)
+    with pytest.raises(sdguide.ConfigError):
+        sdguide.ImageStatistics(2, 2, epsilon=0.0)
+
+
+def test_continuations_round_stochastically():
+    traced, weights = sdguide.continuations(
+        f32([2.25, 2.25, 0.5, 0.5, np.nan]), f32([0.1, 0.5, 0.7, 0.2, 0.3])
+    )
+    assert traced.tolist() == [3, 2, 0, 1, 1]
+    np.testing.assert_allclose(weights, [1 / 2.25, 1 / 2.25, 2.0, 2.0, 1.0], rtol=1e-6)
+    # E[traced] = q: 200k draws at q = 1.3 within 5 standard errors (σ² = 0.3·0.7).
+    u = np.random.default_rng(9).random(200_000, dtype=np.float32)
+    traced, _ = sdguide.continuations(f32(np.full(200_000, 1.3)), u)
+    assert abs(traced.mean() - 1.3) < 5.0 * np.sqrt(0.21 / 200_000)
