@@ -98,6 +98,8 @@ class RenderInfo:
     #: The mean over the image of each render wave, per channel: independent estimates given
     #: the field, whose spread gives the image mean's standard error.
     wave_means: list = dataclass_field(default_factory=list)
+    #: The variance of each wave's image mean, per channel, from its pixels' sample variances.
+    wave_variances: list = dataclass_field(default_factory=list)
     stats: dict = dataclass_field(default_factory=dict)
     #: Rays traced (camera, extension and shadow rays) and camera samples in the final render.
     rays: int = 0
@@ -110,6 +112,12 @@ class RenderInfo:
     @property
     def rays_per_sample(self) -> float:
         return self.rays / max(self.camera_samples, 1)
+
+    def image_mean(self):
+        """The final image's mean over pixels and its standard error, per channel."""
+        waves = len(self.wave_means)
+        mean = np.mean(self.wave_means, axis=0)
+        return mean, np.sqrt(np.sum(self.wave_variances, axis=0)) / waves
 
 
 class GuidedPathTracer:
@@ -190,6 +198,7 @@ class GuidedPathTracer:
             total = image if total is None else total + image
             done += 1
             info.wave_means.append(image.mean(axis=(0, 1)))
+            info.wave_variances.append(self._mean_variance)
             info.rays += self._rays
             info.camera_samples += spp * image.shape[0] * image.shape[1]
             info.passes.append(("render", spp, time.perf_counter() - t))
@@ -226,6 +235,7 @@ class GuidedPathTracer:
         pixels = width * height
         per_wave = max(1, min(spp, MAX_LANES // pixels))
         image = np.zeros((pixels, 3), np.float64)
+        squares = np.zeros((pixels, 3), np.float64)
         done, self._rays = 0, 0
         while done < spp:
             k = min(per_wave, spp - done)
@@ -235,9 +245,14 @@ class GuidedPathTracer:
             pixel = np.repeat(np.arange(pixels, dtype=np.uint32), k)
             image_stats.add(pixel, _f32(_luminance(estimates)), _f32(rays))
             image += estimates.reshape(pixels, k, 3).sum(axis=1)
+            squares += (estimates**2).reshape(pixels, k, 3).sum(axis=1)
             self._rays += int(rays.sum())
             done += k
         image_stats.end_pass()
+        # The variance of the image's mean, from each pixel's sample variance (its camera
+        # samples are independent given the field and the image terms the pass started with).
+        pixel_variance = (squares - image**2 / spp) / max(spp - 1, 1)
+        self._mean_variance = pixel_variance.sum(axis=0) / spp / pixels**2
         return (image / spp).reshape(height, width, 3)
 
     def _wave(

@@ -120,3 +120,23 @@ pub fn vec3_output(py: Python<'_>, data: Vec<f32>) -> PyResult<Bound<'_, PyArray
     let lanes = data.len() / 3;
     PyArray1::from_vec(py, data).reshape([lanes, 3])
 }
+
+/// Optional inputs that come together (the mixture's terms): their slices if all are given,
+/// `None` if none is, a `ValueError` naming them (`names`) otherwise.
+pub fn all_or_none<'a, const N: usize>(
+    names: &str,
+    inputs: [&'a Option<Input<'_, f32>>; N],
+) -> PyResult<Option<[&'a [f32]; N]>> {
+    let given = inputs.iter().filter(|i| i.is_some()).count();
+    if given == 0 {
+        return Ok(None);
+    }
+    if given < N {
+        return Err(PyValueError::new_err(format!(
+            "{names} come together: all or none"
+        )));
+    }
+    Ok(Some(
+        inputs.map(|i| i.as_ref().map_or(&[][..], |a| a.slice())),
+    ))
+}

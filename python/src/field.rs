@@ -4,9 +4,9 @@
 //! Every batch call checks its arrays, then releases the GIL while the library's batch calls
 //! run the lanes in parallel on rayon's pool; each lane is the one-vertex call, to the bit.
 
-use crate::arrays::{Input, input, optional, vec3_output};
+use crate::arrays::{Input, all_or_none, input, optional, vec3_output};
 use crate::errors::{cache_error, config_error, merge_error};
-use crate::image::PyImageStatistics;
+use crate::image::{PyImageStatistics, parse_mode};
 use glam::Vec3;
 use numpy::{PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
@@ -224,15 +224,10 @@ impl PyGuidingField {
         let bsdf_pdfs: Option<Input<f32>> = optional(bsdf_pdfs, "bsdf_pdfs", n, None)?;
         let guide_pdfs: Option<Input<f32>> = optional(guide_pdfs, "guide_pdfs", n, None)?;
         let volume: Option<Input<bool>> = optional(volume, "volume", n, None)?;
-        let mixture = match (&integrands, &bsdf_pdfs, &guide_pdfs) {
-            (Some(f), Some(b), Some(g)) => Some((f.slice(), b.slice(), g.slice())),
-            (None, None, None) => None,
-            _ => {
-                return Err(PyValueError::new_err(
-                    "`integrands`, `bsdf_pdfs` and `guide_pdfs` come together: all three or none",
-                ));
-            }
-        };
+        let mixture = all_or_none(
+            "`integrands`, `bsdf_pdfs` and `guide_pdfs`",
+            [&integrands, &bsdf_pdfs, &guide_pdfs],
+        )?;
         let (p, d, v, q) = (
             positions.vec3s(),
             directions.vec3s(),
@@ -255,7 +250,7 @@ impl PyGuidingField {
                         volume: volume.is_some_and(|m| m[i]),
                         ..Sample::default()
                     };
-                    if let Some((f, b, g)) = mixture {
+                    if let Some([f, b, g]) = mixture {
                         s = s.with_mixture(f[i], b[i], g[i]);
                     }
                     s
@@ -285,17 +280,31 @@ impl PyGuidingField {
         min_survival: f32,
         max_splits: f32,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
-        crate::image::splitting_factor(
-            &self.inner,
-            py,
-            positions,
-            throughputs,
-            pixels,
-            image,
-            mode,
-            min_survival,
-            max_splits,
-        )
+        let positions: Input<f32> = input(positions, "positions", None, Some(3))?;
+        let n = positions.vec3s().len();
+        let throughputs: Input<f32> = input(throughputs, "throughputs", Some(n), None)?;
+        let pixels: Input<u32> = input(pixels, "pixels", Some(n), None)?;
+        let policy = image
+            .inner
+            .splitting(parse_mode(mode)?)
+            .map(|p| p.with_bounds(min_survival, max_splits))
+            .transpose()
+            .map_err(|e| config_error(e.to_string()))?;
+        let (x, t, p) = (positions.vec3s(), throughputs.slice(), pixels.slice());
+        let (field, image) = (&self.inner, &image.inner);
+        let factors = py.detach(|| {
+            (0..n)
+                .into_par_iter()
+                .with_min_len(sdguide::BATCH_CHUNK)
+                .map(|i| {
+                    let pixel = image.pixel(p[i] as usize);
+                    policy
+                        .and_then(|policy| policy.factor(&field.continuation(x[i]), t[i], pixel))
+                        .unwrap_or(f32::NAN)
+                })
+                .collect()
+        });
+        Ok(PyArray1::from_vec(py, factors))
     }
 
     /// Learns from what was recorded since the last `refine`: new spatial and directional

@@ -1,5 +1,5 @@
-//! `sdguide.ImageStatistics` and the splitting factor over lanes: the library's
-//! efficiency-aware roulette and splitting for a wavefront renderer.
+//! `sdguide.ImageStatistics` and `continuations`: the library's efficiency-aware roulette and
+//! splitting for a wavefront renderer (the factor itself is `GuidingField.splitting_factor`).
 //!
 //! Each pass, the renderer adds its camera samples (pixel, luminance, rays) and ends the pass;
 //! from then on `GuidingField.splitting_factor` gives each vertex's factor `q` from its cell's
@@ -11,14 +11,13 @@ use crate::errors::config_error;
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use rayon::prelude::*;
 use sdguide::{ImageStatistics, SplittingMode};
 
 /// A render's camera samples per pixel over its passes, and the image terms of the
 /// efficiency-aware factor they give for the next pass.
 #[pyclass(name = "ImageStatistics", module = "sdguide")]
 pub struct PyImageStatistics {
-    inner: ImageStatistics,
+    pub(crate) inner: ImageStatistics,
     pixels: usize,
 }
 
@@ -98,7 +97,7 @@ impl PyImageStatistics {
     }
 }
 
-fn parse_mode(text: &str) -> PyResult<SplittingMode> {
+pub(crate) fn parse_mode(text: &str) -> PyResult<SplittingMode> {
     match text.to_ascii_lowercase().as_str() {
         "roulette" => Ok(SplittingMode::Roulette),
         "splitting" | "roulette_and_splitting" => Ok(SplittingMode::RouletteAndSplitting),
@@ -106,48 +105,6 @@ fn parse_mode(text: &str) -> PyResult<SplittingMode> {
             "`mode` is {text:?}: \"roulette\" or \"splitting\""
         ))),
     }
-}
-
-/// `GuidingField.splitting_factor` (documented there).
-#[allow(clippy::too_many_arguments)]
-pub fn splitting_factor<'py>(
-    field: &sdguide::GuidingField,
-    py: Python<'py>,
-    positions: &Bound<'py, PyAny>,
-    throughputs: &Bound<'py, PyAny>,
-    pixels: &Bound<'py, PyAny>,
-    image: &PyImageStatistics,
-    mode: &str,
-    min_survival: f32,
-    max_splits: f32,
-) -> PyResult<Bound<'py, PyArray1<f32>>> {
-    let positions: Input<f32> = input(positions, "positions", None, Some(3))?;
-    let n = positions.vec3s().len();
-    let throughputs: Input<f32> = input(throughputs, "throughputs", Some(n), None)?;
-    let pixels: Input<u32> = input(pixels, "pixels", Some(n), None)?;
-    let policy = image
-        .inner
-        .splitting(parse_mode(mode)?)
-        .map(|p| p.with_bounds(min_survival, max_splits))
-        .transpose()
-        .map_err(|e| config_error(e.to_string()))?;
-    let (x, t, p) = (positions.vec3s(), throughputs.slice(), pixels.slice());
-    let image = &image.inner;
-    let factors = py.detach(|| {
-        (0..n)
-            .into_par_iter()
-            .with_min_len(sdguide::BATCH_CHUNK)
-            .map(|i| {
-                policy
-                    .and_then(|policy| {
-                        let estimate = field.continuation(x[i]);
-                        policy.factor(&estimate, t[i], image.pixel(p[i] as usize))
-                    })
-                    .unwrap_or(f32::NAN)
-            })
-            .collect()
-    });
-    Ok(PyArray1::from_vec(py, factors))
 }
 
 /// What `continuations` returns: the counts `(N,)` and the weights `(N,)`.

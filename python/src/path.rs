@@ -10,9 +10,9 @@
 //! released, each path's lanes in order, and each recorder does exactly what the one-path
 //! recorder does.
 
-use crate::arrays::{Input, input, optional, vec3_output};
+use crate::arrays::{Input, all_or_none, input, optional, vec3_output};
 use crate::field::PyGuidingField;
-use numpy::{PyArray1, PyArray2};
+use numpy::{Element, PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -137,6 +137,31 @@ impl PyPathRecorderBatch {
     }
 }
 
+impl PyPathRecorderBatch {
+    /// [`each`](Self::each) for an event with two per-lane scalars, `(name, array)` each.
+    fn each_with<A, B>(
+        &mut self,
+        py: Python<'_>,
+        lanes: &Lanes<'_>,
+        (a_name, a): (&str, &Bound<'_, PyAny>),
+        (b_name, b): (&str, &Bound<'_, PyAny>),
+        f: impl Fn(&mut PathRecorder, VertexId, A, B) + Sync + Send,
+    ) -> PyResult<()>
+    where
+        A: Element + Copy + Sync,
+        B: Element + Copy + Sync,
+    {
+        let a: Input<A> = input(a, a_name, Some(lanes.len()), None)?;
+        let b: Input<B> = input(b, b_name, Some(lanes.len()), None)?;
+        let (a, b) = (a.slice(), b.slice());
+        self.each(py, lanes, |i, r, v| {
+            f(r, v, a[i], b[i]);
+            0
+        });
+        Ok(())
+    }
+}
+
 fn handles(id: VertexId) -> u32 {
     u32::try_from(id.index()).unwrap_or(NO_VERTEX)
 }
@@ -244,15 +269,7 @@ impl PyPathRecorderBatch {
         let bsdf_pdfs: Option<Input<f32>> = optional(bsdf_pdfs, "bsdf_pdfs", n, None)?;
         let guide_pdfs: Option<Input<f32>> = optional(guide_pdfs, "guide_pdfs", n, None)?;
         let volume: Option<Input<bool>> = optional(volume, "volume", n, None)?;
-        let mixture = match (&bsdf_pdfs, &guide_pdfs) {
-            (Some(b), Some(g)) => Some((b.slice(), g.slice())),
-            (None, None) => None,
-            _ => {
-                return Err(PyValueError::new_err(
-                    "`bsdf_pdfs` and `guide_pdfs` come together: both or neither",
-                ));
-            }
-        };
+        let mixture = all_or_none("`bsdf_pdfs` and `guide_pdfs`", [&bsdf_pdfs, &guide_pdfs])?;
         let (x, d, f, q) = (
             positions.vec3s(),
             directions.vec3s(),
@@ -266,7 +283,7 @@ impl PyPathRecorderBatch {
             if let Some(n) = normals {
                 vertex = vertex.with_normal(n[i]);
             }
-            if let Some((b, g)) = mixture {
+            if let Some([b, g]) = mixture {
                 vertex = vertex.with_mixture(b[i], g[i]);
             }
             if volume.is_some_and(|m| m[i]) {
@@ -313,15 +330,10 @@ impl PyPathRecorderBatch {
         active: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
         let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
-        let n = lanes.len();
-        let probabilities: Input<f32> = input(probabilities, "probabilities", Some(n), None)?;
-        let survived: Input<bool> = input(survived, "survived", Some(n), None)?;
-        let (p, s) = (probabilities.slice(), survived.slice());
-        self.each(py, &lanes, |i, r, v| {
-            r.roulette(v, p[i], s[i]);
-            0
-        });
-        Ok(())
+        let (p, s) = (("probabilities", probabilities), ("survived", survived));
+        self.each_with(py, &lanes, p, s, |r, v, p: f32, s: bool| {
+            r.roulette(v, p, s)
+        })
     }
 
     /// Roulette or splitting at the vertex the ray of `at[i]` reached: `traced[i]`
@@ -338,15 +350,8 @@ impl PyPathRecorderBatch {
         active: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
         let lanes = Lanes::new(self.paths.len(), at, paths, active)?;
-        let n = lanes.len();
-        let factors: Input<f32> = input(factors, "factors", Some(n), None)?;
-        let traced: Input<u32> = input(traced, "traced", Some(n), None)?;
-        let (k, t) = (factors.slice(), traced.slice());
-        self.each(py, &lanes, |i, r, v| {
-            r.split(v, k[i], t[i]);
-            0
-        });
-        Ok(())
+        let (k, t) = (("factors", factors), ("traced", traced));
+        self.each_with(py, &lanes, k, t, |r, v, k: f32, t: u32| r.split(v, k, t))
     }
 
     /// Ends every path's camera sample: returns their estimates, `(P, 3)` (RGB, every
