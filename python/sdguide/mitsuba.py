@@ -85,7 +85,15 @@ def _np(v) -> np.ndarray:
 
 def _vec(a: np.ndarray):
     """An ``(N, 3)`` numpy array as a Mitsuba vector array."""
-    return mi.Vector3f(np.ascontiguousarray(a.T))
+    return _opaque(mi.Vector3f(np.ascontiguousarray(a.T)))
+
+
+def _opaque(x):
+    """``x`` kept in memory, never folded into a kernel as a constant: Dr.Jit turns an array of
+    one element into a literal, and a kernel with a random literal in it is a new kernel to
+    compile (tens of milliseconds) every time a path's last lane reaches it."""
+    dr.make_opaque(x)
+    return x
 
 
 @dataclass
@@ -364,7 +372,7 @@ class GuidedPathTracer:
             lanes = len(idx)
             if lanes == 0:
                 break
-            si = dr.gather(type(si), si, mi.UInt32(idx.astype(np.uint32)))
+            si = dr.gather(type(si), si, _opaque(mi.UInt32(idx.astype(np.uint32))))
             bsdf = si.bsdf()
             x, n_sh, a = x[idx], n_sh[idx], a[idx]
             path, handle, throughput = path[idx], handle[idx], throughput[idx]
@@ -372,7 +380,7 @@ class GuidedPathTracer:
             paths_kw = {"paths": path} if record else {}
             # The direction: the guide's with probability a, else the BSDF's.
             bs, bs_weight = bsdf.sample(
-                ctx, si, mi.Float(rng.random(lanes, dtype=np.float32)), _point2(rng, lanes)
+                ctx, si, _opaque(mi.Float(rng.random(lanes, dtype=np.float32))), _point2(rng, lanes)
             )
             bs_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             bs_direction = si.to_world(bs.wo)
@@ -385,7 +393,9 @@ class GuidedPathTracer:
             direction = np.where(choose[:, None], guide_d, bs_d)
             delta_np = _np(bs_delta) & ~choose & (_np(bs.pdf) > 0)
             scatter = ~delta_np & (smooth_np | choose)
-            f_d, bsdf_pdf_d = bsdf.eval_pdf(ctx, si, si.to_local(_vec(direction)), mi.Bool(scatter))
+            f_d, bsdf_pdf_d = bsdf.eval_pdf(
+                ctx, si, si.to_local(_vec(direction)), _opaque(mi.Bool(scatter))
+            )
             dr.eval(f_d, bsdf_pdf_d)
             f_np = _soa(f_d)
             bsdf_pdf_np = _np(bsdf_pdf_d).astype(np.float32)
@@ -429,12 +439,12 @@ class GuidedPathTracer:
                 throughput[plays & survived] /= p[plays & survived, None]
                 alive &= ~plays | survived
             keep = np.nonzero(alive)[0]
-            si = dr.gather(type(si), si, mi.UInt32(keep.astype(np.uint32)))
+            si = dr.gather(type(si), si, _opaque(mi.UInt32(keep.astype(np.uint32))))
             ray = si.spawn_ray(_vec(direction[keep]))
             path, handle, throughput = path[keep], handle[keep], throughput[keep]
             prev_si = si
-            prev_q = mi.Float(_f32(np.where(scatter, q, 0.0)[keep]))
-            prev_delta = mi.Bool(delta_np[keep])
+            prev_q = _opaque(mi.Float(_f32(np.where(scatter, q, 0.0)[keep])))
+            prev_delta = _opaque(mi.Bool(delta_np[keep]))
         recorded = None
         if record:
             recorded = recorder.finish()
@@ -453,7 +463,7 @@ def _f32(a) -> np.ndarray:
 
 
 def _point2(rng, n):
-    return mi.Point2f(np.ascontiguousarray(rng.random((2, n), dtype=np.float32)))
+    return _opaque(mi.Point2f(np.ascontiguousarray(rng.random((2, n), dtype=np.float32))))
 
 
 def _accumulate(total: np.ndarray, path: np.ndarray, values: np.ndarray) -> None:
