@@ -202,12 +202,14 @@ class GuidedPathTracer:
         total, done = None, 0
         while True:
             t = time.perf_counter()
-            image = self._pass(scene, sensor, spp, rng, field, image_stats, record=False)
+            image, rays, mean_variance = self._pass(
+                scene, sensor, spp, rng, field, image_stats, record=False
+            )
             total = image if total is None else total + image
             done += 1
             info.wave_means.append(image.mean(axis=(0, 1)))
-            info.wave_variances.append(self._mean_variance)
-            info.rays += self._rays
+            info.wave_variances.append(mean_variance)
+            info.rays += rays
             info.camera_samples += spp * image.shape[0] * image.shape[1]
             info.passes.append(("render", spp, time.perf_counter() - t))
             self._say(f"render wave {done}: {spp} spp, {time.perf_counter() - t:.1f} s")
@@ -237,14 +239,14 @@ class GuidedPathTracer:
 
     def _pass(self, scene, sensor, spp, rng, field, image_stats, record):
         """One pass of ``spp`` samples per pixel, in waves of at most ``MAX_LANES`` camera
-        samples; returns the pass's image (H, W, 3), and adds its camera samples to
-        ``image_stats``."""
+        samples; adds its camera samples to ``image_stats`` and returns its image (H, W, 3),
+        the rays it traced, and the variance of its image's mean per channel."""
         width, height = (int(v) for v in sensor.film().crop_size())
         pixels = width * height
         per_wave = max(1, min(spp, MAX_LANES // pixels))
         image = np.zeros((pixels, 3), np.float64)
         squares = np.zeros((pixels, 3), np.float64)
-        done, self._rays = 0, 0
+        done, rays_traced = 0, 0
         while done < spp:
             k = min(per_wave, spp - done)
             estimates, rays = self._wave(
@@ -254,14 +256,14 @@ class GuidedPathTracer:
             image_stats.add(pixel, _f32(_luminance(estimates)), _f32(rays))
             image += estimates.reshape(pixels, k, 3).sum(axis=1)
             squares += (estimates**2).reshape(pixels, k, 3).sum(axis=1)
-            self._rays += int(rays.sum())
+            rays_traced += int(rays.sum())
             done += k
         image_stats.end_pass()
         # The variance of the image's mean, from each pixel's sample variance (its camera
         # samples are independent given the field and the image terms the pass started with).
         pixel_variance = (squares - image**2 / spp) / max(spp - 1, 1)
-        self._mean_variance = pixel_variance.sum(axis=0) / spp / pixels**2
-        return (image / spp).reshape(height, width, 3)
+        mean_variance = pixel_variance.sum(axis=0) / spp / pixels**2
+        return (image / spp).reshape(height, width, 3), rays_traced, mean_variance
 
     def _wave(
         self, scene, sensor, width, height, spp, rng, field, image_stats, record, estimates=False

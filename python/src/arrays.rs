@@ -41,11 +41,9 @@ impl Input<'_, f32> {
     }
 }
 
-fn dtype_name<T: Element>(py: Python<'_>) -> String {
-    T::get_dtype(py)
-        .str()
-        .map(|s| s.to_string())
-        .unwrap_or_else(|_| "?".into())
+/// A dtype as numpy prints it (`float32`).
+fn dtype_name(dtype: &Bound<'_, numpy::PyArrayDescr>) -> String {
+    dtype.str().map_or_else(|_| "?".into(), |s| s.to_string())
 }
 
 /// `object` as a C-contiguous array of `T` with shape `(lanes, width)` (`width` `None`: shape
@@ -65,17 +63,14 @@ pub fn input<'py, T: Element>(
         let found = match object.cast::<numpy::PyUntypedArray>() {
             Ok(a) => format!(
                 "an array of dtype {} and shape {:?}",
-                a.dtype()
-                    .str()
-                    .map(|s| s.to_string())
-                    .unwrap_or_else(|_| "?".into()),
+                dtype_name(&a.dtype()),
                 a.shape()
             ),
             Err(_) => format!("a {}", object.get_type().name()?),
         };
         return Err(PyValueError::new_err(format!(
             "`{name}` must be a numpy array of dtype {} and shape {shape_text}; got {found}",
-            dtype_name::<T>(py)
+            dtype_name(&T::get_dtype(py))
         )));
     };
     let shape = array.shape();
