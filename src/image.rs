@@ -7,6 +7,10 @@
 //! a camera sample. A pass's own samples give `V̄` and `C̄`; all passes so far give `Ĩ`, averaged
 //! over each pixel's 3×3 neighbourhood (a cheap denoiser: a pixel's own few samples are too
 //! noisy to divide by).
+//!
+//! The same sums combine a render's passes into one image ([`pass_weights`]): by inverse
+//! variance, so that training passes, unbiased but noisier, add to the final render instead of
+//! being thrown away or spoiling it.
 
 use crate::config::ConfigError;
 use crate::splitting::{Splitting, SplittingMode};
@@ -258,4 +262,108 @@ impl ImageStatistics {
             }
         }
     }
+}
+
+/// The weights that combine a render's passes into one image by inverse variance: pixel
+/// `Σₖ wₖ · sumₖ/countₖ`, with `Σₖ wₖ = 1` (Müller et al. 2019, "Practical path guiding in
+/// production": the weighted mean of independent unbiased estimates with the least variance
+/// weighs each by `1/Vₖ`).
+///
+/// `passes` holds each pass's sums per pixel (`width × height`, row after row, values in
+/// luminance), oldest first; the last is the render's own, the one with the most samples.
+/// A pass's `Vₖ` is the mean over pixels of its pixel means' variances, each relative to the
+/// last pass's image (divided by `P² = Ĩ² + ε`, `Ĩ` its luminance over the pixel's 3×3
+/// neighbourhood, as [`ImageStatistics::pixel`]), so that a pass noisy in dark pixels, which
+/// a relative error weighs most, is not weighed by its bright ones. For every pass but the
+/// last, `Vₖ` is at least the distance of its image from the last's less the last's variance
+/// (`E[(Iₖ − I_last)²] = Vₖ + V_last`): a pass of few samples mostly underestimates its own
+/// heavy-tailed variance, and its distance counts the outliers it did draw.
+///
+/// A pass is left out (weight 0) when one of its pixels has fewer than two samples (no
+/// variance to estimate), when its sums have another length than the image, or when its
+/// variance is zero or not finite (a NaN in its sums). `None` when no pass is left, or when
+/// the last pass has another length than the image.
+///
+/// The weights depend on the images they weigh, but each pools every pixel of a pass, so its
+/// correlation with any one pixel, the bias it brings, falls as one over the pixel count.
+///
+/// ```
+/// use sdguide::{pass_weights, PixelSums};
+/// // Two passes of a one-pixel image, `n` samples of 0 and 2 each: 4 and 12 samples. A pass's
+/// // pixel mean has variance `1/(n − 1)`, so the weights are ∝ 3 and 11.
+/// let pass = |n: u32| {
+///     let n_f = f64::from(n);
+///     vec![PixelSums { sum: n_f, sum_sq: 2.0 * n_f, cost: 0.0, count: n }]
+/// };
+/// let (early, last) = (pass(4), pass(12));
+/// let w = pass_weights(1, 1, &[&early, &last]).unwrap();
+/// assert!((w[0] - 3.0 / 14.0).abs() < 1e-12 && (w[1] - 11.0 / 14.0).abs() < 1e-12);
+/// ```
+pub fn pass_weights(width: usize, height: usize, passes: &[&[PixelSums]]) -> Option<Vec<f64>> {
+    let n = width.saturating_mul(height);
+    let mean = |p: &PixelSums| {
+        if p.count > 0 {
+            p.sum / f64::from(p.count)
+        } else {
+            0.0
+        }
+    };
+    let last = passes.last().filter(|p| p.len() == n)?;
+    let last_index = passes.len() - 1;
+    let last_mean: Vec<f64> = last.iter().map(mean).collect();
+    let mut smoothed = ImageStatistics::new(width, height);
+    let estimate: Vec<f32> = last_mean.iter().map(|&m| m as f32).collect();
+    smoothed.set_estimate(Some(&estimate));
+    let relative: Vec<f64> = (0..n)
+        .map(|p| 1.0 / f64::from(smoothed.pixel(p)).powi(2))
+        .collect();
+    // The mean over pixels of each pixel mean's relative variance; `None` below 2 samples.
+    let variance = |pass: &[PixelSums]| -> Option<f64> {
+        let mut total = 0.0;
+        for (p, &w) in pass.iter().zip(&relative) {
+            if p.count < 2 {
+                return None;
+            }
+            let k = f64::from(p.count);
+            total += w * ((p.sum_sq - p.sum * p.sum / k) / (k - 1.0)).max(0.0) / k;
+        }
+        Some(total / n.max(1) as f64)
+    };
+    let last_variance = variance(last);
+    let mut weights: Vec<f64> = passes
+        .iter()
+        .enumerate()
+        .map(|(i, pass)| {
+            if pass.len() != n {
+                return 0.0;
+            }
+            let Some(own) = variance(pass).filter(|v| v.is_finite()) else {
+                return 0.0;
+            };
+            let v = match last_variance {
+                Some(v_last) if i < last_index => {
+                    let distance = pass
+                        .iter()
+                        .zip(&last_mean)
+                        .zip(&relative)
+                        .map(|((p, &b), &w)| w * (mean(p) - b).powi(2))
+                        .sum::<f64>()
+                        / n.max(1) as f64;
+                    own.max(distance - v_last)
+                }
+                _ => own,
+            };
+            if v > 0.0 && v.is_finite() {
+                1.0 / v
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let total: f64 = weights.iter().sum();
+    if !(total > 0.0 && total.is_finite()) {
+        return None;
+    }
+    weights.iter_mut().for_each(|w| *w /= total);
+    Some(weights)
 }

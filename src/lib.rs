@@ -96,7 +96,7 @@
 //!   them, into their [`Sample`]s and [`Continuation`]s ([`PathVertex`], [`PathRecord`]).
 //! - `splitting`: efficiency-aware Russian roulette and splitting — [`Continuation`],
 //!   [`ContinuationEstimate`], [`Splitting`]; `image`: the image terms it needs,
-//!   [`ImageStatistics`].
+//!   [`ImageStatistics`], and the passes' combination by inverse variance, [`pass_weights`].
 //! - `distribution`: what queries return — [`DirectionalDistribution`], its product with a
 //!   surface's clamped cosine, [`SurfaceDistribution`], and with a medium's phase function,
 //!   [`PhaseDistribution`].
@@ -154,7 +154,7 @@ pub use guide_probability::{
     DEFAULT_MAX_GUIDE_PROBABILITY, INITIAL_GUIDE_PROBABILITY, MAX_GUIDE_COST,
     MAX_GUIDE_PROBABILITY, MIN_GUIDE_PROBABILITY,
 };
-pub use image::{ImageStatistics, PixelSums};
+pub use image::{ImageStatistics, PixelSums, pass_weights};
 pub use merge::MergeError;
 pub use moments::Moments;
 pub use path::{PathRecord, PathRecorder, PathRecorderStats, PathVertex, TechniquePdfs, VertexId};

@@ -1,7 +1,10 @@
 //! Image statistics against hand-computed images: the smoothed pixel values, the relative
-//! variance and cost per sample, the gate on samples per pixel, and bad input.
+//! variance and cost per sample, the gate on samples per pixel, bad input; and the weights that
+//! combine passes by inverse variance.
 
-use sdguide::{ContinuationEstimate, ImageStatistics, Splitting, SplittingMode};
+use sdguide::{
+    ContinuationEstimate, ImageStatistics, PixelSums, Splitting, SplittingMode, pass_weights,
+};
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
@@ -113,4 +116,148 @@ fn bad_samples_count_as_zero_and_stray_pixels_are_ignored() {
     let mut empty = ImageStatistics::new(0, 5);
     empty.end_pass();
     assert!(empty.splitting(SplittingMode::Roulette).is_none());
+}
+
+/// A one-pixel pass of the samples `values`.
+fn one_pixel(values: &[f32]) -> Vec<PixelSums> {
+    let mut p = PixelSums::default();
+    values.iter().for_each(|&v| p.add(v, 1.0));
+    vec![p]
+}
+
+fn weights_close(w: &[f64], expected: &[f64]) -> bool {
+    w.len() == expected.len() && w.iter().zip(expected).all(|(&a, &b)| close(a, b))
+}
+
+#[test]
+fn passes_are_weighed_by_their_inverse_variances() {
+    // The last pass: samples 1 and 3, mean 2, sample variance 2, the mean's variance 1. An
+    // earlier one with the same mean: 0, 0, 2, 6, sample variance 8, the mean's 2. A pixel's
+    // relative factor is the same for every pass, so the weights are ∝ 1/2 and 1.
+    let last = one_pixel(&[1.0, 3.0]);
+    let same_mean = one_pixel(&[0.0, 0.0, 2.0, 6.0]);
+    let w = pass_weights(1, 1, &[&same_mean, &last]).unwrap();
+    assert!(weights_close(&w, &[1.0 / 3.0, 2.0 / 3.0]), "{w:?}");
+    // An earlier pass far from the last: 3 and 7, mean 5, its own variance 4, but by its
+    // distance 3² − 1 = 8, which counts: weights ∝ 1/8 and 1.
+    let far = one_pixel(&[3.0, 7.0]);
+    let w = pass_weights(1, 1, &[&far, &last]).unwrap();
+    assert!(weights_close(&w, &[1.0 / 9.0, 8.0 / 9.0]), "{w:?}");
+    // The last pass is weighed by its own variance only: last 3, 7 (variance 4); the earlier
+    // 1, 3 at distance 9 − 4 = 5 > 1. Weights ∝ 1/5 and 1/4.
+    let w = pass_weights(1, 1, &[&last, &far]).unwrap();
+    assert!(weights_close(&w, &[4.0 / 9.0, 5.0 / 9.0]), "{w:?}");
+    // Pixels are averaged: a second, constant pixel halves a pass's variance, in every pass
+    // alike (the relative factors are equal: the 3×3 smoothing spans the 2×1 image).
+    let two = |a: &[f32]| {
+        let mut p = one_pixel(a);
+        p.extend(one_pixel(&vec![7.0; a.len()]));
+        p
+    };
+    let w = pass_weights(2, 1, &[&two(&[0.0, 0.0, 2.0, 6.0]), &two(&[1.0, 3.0])]).unwrap();
+    assert!(weights_close(&w, &[1.0 / 3.0, 2.0 / 3.0]), "{w:?}");
+}
+
+#[test]
+fn passes_without_a_variance_are_left_out() {
+    let last = one_pixel(&[1.0, 3.0]);
+    // One sample a pixel, zero variance, a NaN, or another size: weight 0.
+    let single = one_pixel(&[5.0]);
+    let flat = one_pixel(&[2.0, 2.0]);
+    let mut nan = one_pixel(&[1.0, 3.0]);
+    nan[0].sum_sq = f64::NAN;
+    let mut sum_nan = one_pixel(&[1.0, 3.0]);
+    sum_nan[0].sum = f64::NAN;
+    let wrong = one_pixel(&[1.0, 3.0]).repeat(2);
+    let passes = [&single, &flat, &nan, &sum_nan, &wrong, &last].map(Vec::as_slice);
+    let w = pass_weights(1, 1, &passes).unwrap();
+    assert!(weights_close(&w, &[0.0, 0.0, 0.0, 0.0, 0.0, 1.0]), "{w:?}");
+    // Nothing to weigh: no pass, no pass with a variance, a last pass of another size, an
+    // empty image.
+    assert!(pass_weights(1, 1, &[]).is_none());
+    assert!(pass_weights(1, 1, &[&single, &flat]).is_none());
+    assert!(pass_weights(1, 1, &[&last, &wrong]).is_none());
+    assert!(pass_weights(0, 0, &[&[]]).is_none());
+}
+
+/// A small generator for the statistical test (SplitMix64).
+struct Rng(u64);
+
+impl Rng {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+#[test]
+fn passes_of_equal_samples_are_weighed_by_their_sample_counts_and_combine_unbiased() {
+    // 32×32 pixels of exponentially distributed samples (mean μₚ varying over the image);
+    // passes of 4, 8, 16 and 64 samples a pixel, all of the same per-sample variance: the
+    // ideal weights are ∝ the counts. Each pass's pooled variance has a relative standard
+    // deviation of about sqrt((κ − 1)/(n·P)) (κ = 9, the exponential's kurtosis; P = 1024
+    // pixels): ≤ 0.044 at n = 4; the earlier passes' `max(own, distance − V_last)` adds at
+    // most about half of that. A ratio of two weights is then within 25% of the ideal at
+    // five standard deviations.
+    let (width, height) = (32, 32);
+    let counts = [4u32, 8, 16, 64];
+    let mu = |p: usize| 0.2 + (p % width) as f64 / width as f64 + (p / width) as f64 / 16.0;
+    let mut rng = Rng(7);
+    let passes: Vec<Vec<PixelSums>> = counts
+        .iter()
+        .map(|&n| {
+            (0..width * height)
+                .map(|p| {
+                    let mut s = PixelSums::default();
+                    for _ in 0..n {
+                        s.add((-mu(p) * (1.0 - rng.uniform()).ln()) as f32, 1.0);
+                    }
+                    s
+                })
+                .collect()
+        })
+        .collect();
+    let views: Vec<&[PixelSums]> = passes.iter().map(Vec::as_slice).collect();
+    let w = pass_weights(width, height, &views).unwrap();
+    let total: f64 = counts.iter().map(|&n| f64::from(n)).sum();
+    for (k, &n) in counts.iter().enumerate() {
+        let ideal = f64::from(n) / total;
+        assert!(
+            (w[k] / ideal - 1.0).abs() < 0.25,
+            "pass {k}: {} vs {ideal}",
+            w[k]
+        );
+    }
+    assert!(close(w.iter().sum(), 1.0));
+    // The combined image's mean over pixels is within 4σ of the true mean, σ the combined
+    // image's (each pass's pixel mean has variance μₚ²/n).
+    let combined_mean: f64 = (0..width * height)
+        .map(|p| {
+            views
+                .iter()
+                .zip(&w)
+                .map(|(pass, &wk)| wk * pass[p].sum / f64::from(pass[p].count))
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / (width * height) as f64;
+    let truth: f64 = (0..width * height).map(mu).sum::<f64>() / (width * height) as f64;
+    let variance: f64 = (0..width * height)
+        .map(|p| {
+            counts
+                .iter()
+                .zip(&w)
+                .map(|(&n, &wk)| wk * wk * mu(p).powi(2) / f64::from(n))
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / ((width * height) as f64).powi(2);
+    assert!(
+        (combined_mean - truth).abs() < 4.0 * variance.sqrt(),
+        "{combined_mean} vs {truth} ± {}",
+        variance.sqrt()
+    );
 }

@@ -9,7 +9,9 @@ means against the reference's, images. Writes `report.md`, EXR and PNG images to
 The reference is Mitsuba's `path` at `--reference-spp` (saved beside the report and reused).
 "Per sample": every method's final image at `--spp` camera samples per pixel (those that learn
 train first, on 1 + 2 + … + 2^(passes−1) spp more). "Equal time": every method gets `--time`
-seconds, training included. Each is repeated over `--seeds`."""
+seconds, training included (passes double while the next would end within half the time),
+its training passes' images combined with the final render's by inverse variance. Each is
+repeated over `--seeds`."""
 
 from __future__ import annotations
 
@@ -46,23 +48,29 @@ def render_path(mi, scene, spp, seed, budget=None, chunk=None):
 
 
 def reference(mi, name, scene, spp, out):
-    """Mitsuba's path at `spp`, in 16 chunks (their spread: the reference mean's error)."""
+    """Mitsuba's path at `spp`, in 16 chunks: the image, the chunks' image means (their
+    spread: the reference mean's error) and the reference's own relMSE, the part of every
+    method's relMSE that is the reference's noise (`E[(I − R)²] = Var I + Var R`)."""
     path = os.path.join(out, f"{name}-reference.npz")
     if os.path.exists(path):
         data = np.load(path)
         if (
             int(data["spp"]) == spp
             and data["image"].shape[0] == scene.sensors()[0].film().crop_size()[1]
+            and "own_relmse" in data
         ):
-            return data["image"], data["chunk_means"]
-    chunks = [
-        np.array(mi.render(scene, spp=max(1, spp // 16), seed=10_000 + i), np.float64)
-        for i in range(16)
-    ]
+            return data["image"], data["chunk_means"], float(data["own_relmse"])
+    chunks = []
+    for i in range(16):
+        chunks.append(
+            np.array(mi.render(scene, spp=max(1, spp // 16), seed=10_000 + i), np.float64)
+        )
     image = np.mean(chunks, axis=0)
     chunk_means = np.array([c.mean(axis=(0, 1)) for c in chunks])
-    np.savez(path, image=image, chunk_means=chunk_means, spp=spp)
-    return image, chunk_means
+    variance = np.var(chunks, axis=0, ddof=1) / len(chunks)
+    own = float(np.mean(variance / (image**2 + 1e-2)))
+    np.savez(path, image=image, chunk_means=chunk_means, spp=spp, own_relmse=own)
+    return image, chunk_means, own
 
 
 #: The methods compared: Mitsuba's own `path`, then the wavefront tracer's four settings.
@@ -84,7 +92,7 @@ def main(argv=None) -> int:
     parser.add_argument("--time", type=float, default=30.0, help="seconds per method")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--passes", type=int, default=6, help="training passes")
-    parser.add_argument("--reference-spp", type=int, default=16384)
+    parser.add_argument("--reference-spp", type=int, default=65536)
     parser.add_argument("--short", action="store_true", help="a quick run for CI")
     parser.add_argument("--out", default="out/mitsuba")
     args = parser.parse_args(argv)
@@ -105,10 +113,12 @@ def main(argv=None) -> int:
         f"seeds 1–{args.seeds}; reference: `path` at {args.reference_spp} spp. The wavefront "
         "tracer (`sdguide.mitsuba`) with the guide off or on, with classic roulette or the "
         "library's efficiency-aware roulette and splitting (EARS); those that learn train "
-        f"{args.passes} passes first ({(1 << args.passes) - 1} spp). Per sample: the final "
+        f"{args.passes} passes first ({(1 << args.passes) - 1} spp; at equal time, passes "
+        "double while the next would end within half the budget). Per sample: the final "
         f"render at {args.spp} camera samples per pixel (EARS traces more rays per sample: "
         f"compare it at equal time). Equal time: {args.time:g} s per method, training "
-        "included. relMSE: mean of (I − R)²/(R² + 0.01) over pixels and channels, mean ± "
+        "included, the training passes combined with the final render by inverse variance. "
+        "relMSE: mean of (I − R)²/(R² + 0.01) over pixels and channels, mean ± "
         "standard deviation over seeds; ratios against the guide off with classic roulette.",
         "",
         "| scene | method | relMSE per sample | ratio | rays per sample | relMSE equal time "
@@ -119,7 +129,7 @@ def main(argv=None) -> int:
     for name in args.scenes.split(","):
         scene = mi.load_dict(scenes.build(name, args.size))
         max_depth = scenes.build(name, 8)["integrator"]["max_depth"]
-        ref, ref_chunks = reference(mi, name, scene, args.reference_spp, args.out)
+        ref, ref_chunks, ref_noise = reference(mi, name, scene, args.reference_spp, args.out)
         ref_mean, ref_error = mean_and_error(ref_chunks)
         tracers = {
             key: GuidedPathTracer(max_depth=max_depth, training_passes=args.passes, **kw)
@@ -151,13 +161,13 @@ def main(argv=None) -> int:
                     images.setdefault(key, image)
                     continue
                 tracer = tracers[key]
-                image, _, info = tracer.render(scene, args.spp, seed=seed)
+                image, _, info = tracer.render(scene, args.spp, seed=seed, combine=False)
                 r["sample"].append(relative_mse(image, ref))
                 r["rays"].append(info.rays_per_sample)
                 wave = max(2, args.spp // 4)
                 image, _, timed = tracer.render(scene, wave, seed=seed + 1000, budget=args.time)
                 r["time"].append(relative_mse(image, ref))
-                r["spp"].append(wave * len(timed.wave_means))
+                r["spp"].append(timed.spp)
                 images.setdefault(key, image)
                 for run in (info, timed):
                     mean, error = run.image_mean()
@@ -184,10 +194,13 @@ def main(argv=None) -> int:
                 f"off with classic roulette, {best / np.mean(results['off-ears']['time']):.2f}× "
                 "the guide off with EARS"
                 + (
-                    f", {best / np.mean(results['path']['time']):.2f}× Mitsuba's `path`."
+                    f", {best / np.mean(results['path']['time']):.2f}× Mitsuba's `path`"
                     if "path" in results
-                    else "."
+                    else ""
                 )
+                + f" (the reference's own relMSE, {ref_noise:.2g}, is in every figure; less "
+                f"it, {(best - ref_noise) / (base_time - ref_noise):.2f}× the guide off with "
+                "classic roulette)."
             )
         strip = np.concatenate([ref] + [images[k] for k in methods], axis=1)
         mi.util.write_bitmap(

@@ -37,6 +37,7 @@ from ._sdguide import (
     MergeError,
     PathRecorderBatch,
     continuations,
+    pass_weights,
 )
 
 __all__ = [
@@ -49,4 +50,5 @@ __all__ = [
     "MergeError",
     "PathRecorderBatch",
     "continuations",
+    "pass_weights",
 ]

@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
 U32 = npt.NDArray[np.uint32]
 Mask = npt.NDArray[np.bool_]
 Vec3Like = Sequence[float]
@@ -197,3 +198,11 @@ class ImageStatistics:
 def continuations(factors: F32, u: F32) -> tuple[U32, F32]:
     """How many continuations each factor traces (stochastic rounding with ``u``) and the
     weight ``1/q`` each carries; NaN: one, weight 1."""
+
+def pass_weights(
+    width: int, height: int, sums: F64, squares: F64, counts: U32
+) -> npt.NDArray[np.float64] | None:
+    """The weights ``(K,)`` that combine ``K`` passes by inverse variance (``Σ w = 1``):
+    ``sums``/``squares`` ``float64 (K, H·W)`` per-pixel luminance sums, ``counts``
+    ``uint32 (K, H·W)``; oldest pass first, the final render last. ``None``: no pass
+    can be weighed."""

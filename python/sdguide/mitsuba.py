@@ -16,7 +16,8 @@ it; ``roulette="ears"`` plays the library's efficiency-aware roulette and splitt
 a split vertex's continuations becoming more lanes of its camera sample.
 
 Training follows the SD-tree schedule: passes of 1, 2, 4, … samples per pixel, each recorded
-and followed by ``refine``; the image is the final render's, with the trained field. Every
+and followed by ``refine``; the image is the final render, with the trained field, combined
+with the training passes' images by inverse variance (:func:`sdguide.pass_weights`). Every
 pass also feeds :class:`sdguide.ImageStatistics`, the image terms of the splitting factor.
 
     from sdguide.mitsuba import GuidedPathTracer, register, set_variant
@@ -97,21 +98,59 @@ def _opaque(x):
 
 
 @dataclass
+class PassSums:
+    """One pass's per-pixel sums of its samples: RGB and squared RGB ``(H·W, 3)``,
+    luminance and squared luminance ``(H·W,)`` (what :func:`sdguide.pass_weights` takes);
+    ``spp`` samples per pixel."""
+
+    rgb: np.ndarray
+    rgb_squares: np.ndarray
+    luminance: np.ndarray
+    luminance_squares: np.ndarray
+    spp: int = 0
+
+    @classmethod
+    def empty(cls, pixels: int) -> PassSums:
+        zeros = np.zeros(pixels, np.float64)
+        return cls(np.zeros((pixels, 3)), np.zeros((pixels, 3)), zeros, zeros.copy())
+
+    def add(self, other: PassSums) -> None:
+        """Pools ``other``'s samples into this pass."""
+        self.rgb += other.rgb
+        self.rgb_squares += other.rgb_squares
+        self.luminance += other.luminance
+        self.luminance_squares += other.luminance_squares
+        self.spp += other.spp
+
+    def image_mean(self):
+        """The pass image's mean over pixels and that mean's variance (from the pixels'
+        sample variances), per channel."""
+        pixels, n = len(self.rgb), max(self.spp, 1)
+        variance = (self.rgb_squares - self.rgb**2 / n) / max(n - 1, 1)
+        return self.rgb.sum(axis=0) / n / pixels, variance.sum(axis=0) / n / pixels**2
+
+
+@dataclass
 class RenderInfo:
-    """What a render did: its passes and times, and the field's size at the end."""
+    """What a render did: its passes and times, how they were combined, and the field's size
+    at the end."""
 
     seconds_training: float = 0.0
     seconds_render: float = 0.0
     passes: list = dataclass_field(default_factory=list)
-    #: The mean over the image of each render wave, per channel: independent estimates given
-    #: the field, whose spread gives the image mean's standard error.
-    wave_means: list = dataclass_field(default_factory=list)
-    #: The variance of each wave's image mean, per channel, from its pixels' sample variances.
-    wave_variances: list = dataclass_field(default_factory=list)
+    #: Per pass of the image (the training passes, then the final render): the mean over
+    #: the image per channel, and that mean's variance from its pixels' sample variances.
+    pass_means: list = dataclass_field(default_factory=list)
+    pass_variances: list = dataclass_field(default_factory=list)
+    #: The weight of each of those passes in the image (:func:`sdguide.pass_weights`; the
+    #: final render's alone without ``combine``).
+    weights: list = dataclass_field(default_factory=list)
     stats: dict = dataclass_field(default_factory=dict)
-    #: Rays traced (camera, extension and shadow rays) and camera samples in the final render.
+    #: Rays traced (camera, extension and shadow rays), camera samples and samples per pixel
+    #: in the final render.
     rays: int = 0
     camera_samples: int = 0
+    spp: int = 0
 
     @property
     def seconds(self) -> float:
@@ -122,10 +161,11 @@ class RenderInfo:
         return self.rays / max(self.camera_samples, 1)
 
     def image_mean(self):
-        """The final image's mean over pixels and its standard error, per channel."""
-        waves = len(self.wave_means)
-        mean = np.mean(self.wave_means, axis=0)
-        return mean, np.sqrt(np.sum(self.wave_variances, axis=0)) / waves
+        """The image's mean over pixels and its standard error, per channel (the passes are
+        independent given the fields they were rendered with, their weights taken as fixed)."""
+        w = np.asarray(self.weights, np.float64)[:, None]
+        mean = np.sum(w * np.asarray(self.pass_means), axis=0)
+        return mean, np.sqrt(np.sum(w**2 * np.asarray(self.pass_variances), axis=0))
 
 
 class GuidedPathTracer:
@@ -142,7 +182,12 @@ class GuidedPathTracer:
     guided relMSE times rays by 16–29% (``docs/python.md``). ``training_passes`` passes of 1,
     2, 4, … spp train the field (the guide, and the continuation estimates the roulette
     needs) before the final render; they are skipped when a field is passed to ``render``,
-    or when the guide is off under classic roulette, where nothing would use them.
+    or when the guide is off under classic roulette, where nothing would use them. With a
+    ``budget``, time sets the passes instead (unless ``training_share`` is ``None``): they go
+    on doubling while the next one (at twice the last one's time) would end within
+    ``training_share`` of the budget. Their images join the final render's by inverse
+    variance, so training longer costs little: on ``door`` at 60 s, a share of 0.5 (255 spp
+    of training) measured ahead of 0.3 (127 spp; ``docs/python.md``).
     """
 
     #: The camera sample's rays beyond which a vertex no longer splits (the demo's bound).
@@ -155,6 +200,7 @@ class GuidedPathTracer:
         guided: bool = True,
         roulette: str = "classic",
         training_passes: int = 5,
+        training_share: float | None = 0.5,
         max_splits: float = 8.0,
         progress: bool = False,
         **config,
@@ -167,50 +213,69 @@ class GuidedPathTracer:
         self.rr_depth = rr_depth
         self.guided = guided
         self.roulette = roulette
-        self.training_passes = training_passes if (guided or roulette != "classic") else 0
+        if training_share is not None and not 0.0 < training_share < 1.0:
+            raise ValueError(f"training_share is {training_share!r}: in (0, 1)")
+        self.trains = guided or roulette != "classic"
+        self.training_passes = training_passes if self.trains else 0
+        self.training_share = training_share
         self.max_splits = max_splits
         self.progress = progress
         self.config = {"spatial_threshold": 4000.0, **config}
 
     # --- the public entry points ------------------------------------------------------------
 
-    def render(self, scene, spp: int, seed: int = 0, field=None, sensor=None, budget=None, waves=1):
+    def render(
+        self,
+        scene,
+        spp: int,
+        seed: int = 0,
+        field=None,
+        sensor=None,
+        budget=None,
+        waves=1,
+        combine=True,
+    ):
         """Trains (unless ``field`` is given), then renders ``waves`` waves of ``spp``
-        samples per pixel: returns ``(image (H, W, 3) float32, field, RenderInfo)``, the
-        image the waves' mean.
+        samples per pixel: returns ``(image (H, W, 3) float32, field, RenderInfo)``.
 
         With ``budget`` (seconds), waves go on until the training and rendering time reaches
-        it: an equal-time render.
+        it: an equal-time render. The image is the training passes' and the final render's
+        combined by inverse variance (:func:`sdguide.pass_weights`: the training passes are
+        unbiased, only noisier); ``combine=False`` gives the final render alone.
         """
         sensor = sensor or scene.sensors()[0]
         width, height = (int(v) for v in sensor.film().crop_size())
         rng = np.random.default_rng(seed)
         info = RenderInfo()
         image_stats = sdguide.ImageStatistics(width, height)
+        passes = []
         start = time.perf_counter()
         if field is None:
             lower, upper = self._bounds(scene)
             field = sdguide.GuidingField(lower, upper, **self.config)
-            for k in range(self.training_passes):
+            timed = budget is not None and self.training_share is not None and self.trains
+            last = 0.0
+            for k in range(24 if timed else self.training_passes):
+                # The next pass takes about twice the last one's time.
+                next_ends = time.perf_counter() - start + 2.0 * last
+                if timed and k > 0 and next_ends > self.training_share * budget:
+                    break
                 t = time.perf_counter()
-                self._pass(scene, sensor, 1 << k, rng, field, image_stats, record=True)
+                sums, _ = self._pass(scene, sensor, 1 << k, rng, field, image_stats, record=True)
+                passes.append(sums)
                 field.refine()
-                info.passes.append(("training", 1 << k, time.perf_counter() - t))
+                last = time.perf_counter() - t
+                info.passes.append(("training", 1 << k, last))
                 self._say(f"training pass {k}: {1 << k} spp, {time.perf_counter() - t:.1f} s")
         info.seconds_training = time.perf_counter() - start
         start = time.perf_counter()
-        total, done = None, 0
+        final, done = PassSums.empty(width * height), 0
         while True:
             t = time.perf_counter()
-            image, rays, mean_variance = self._pass(
-                scene, sensor, spp, rng, field, image_stats, record=False
-            )
-            total = image if total is None else total + image
+            sums, rays = self._pass(scene, sensor, spp, rng, field, image_stats, record=False)
+            final.add(sums)
             done += 1
-            info.wave_means.append(image.mean(axis=(0, 1)))
-            info.wave_variances.append(mean_variance)
             info.rays += rays
-            info.camera_samples += spp * image.shape[0] * image.shape[1]
             info.passes.append(("render", spp, time.perf_counter() - t))
             self._say(f"render wave {done}: {spp} spp, {time.perf_counter() - t:.1f} s")
             if done < waves:
@@ -219,9 +284,30 @@ class GuidedPathTracer:
             per_wave = (time.perf_counter() - start) / done
             if budget is None or elapsed + 0.5 * per_wave > budget:
                 break
+        passes.append(final)
+        info.spp = final.spp
+        info.camera_samples = final.spp * width * height
+        weights = None
+        if combine and len(passes) > 1:
+            weights = sdguide.pass_weights(
+                width,
+                height,
+                np.stack([p.luminance for p in passes]),
+                np.stack([p.luminance_squares for p in passes]),
+                np.stack([np.full(width * height, p.spp, np.uint32) for p in passes]),
+            )
+        if weights is None:
+            weights = np.zeros(len(passes))
+            weights[-1] = 1.0
+        image = sum(w / p.spp * p.rgb for w, p in zip(weights, passes) if w > 0)
+        for p in passes:
+            mean, variance = p.image_mean()
+            info.pass_means.append(mean)
+            info.pass_variances.append(variance)
+        info.weights = [float(w) for w in weights]
         info.seconds_render = time.perf_counter() - start
         info.stats = field.stats()
-        return (total / done).astype(np.float32), field, info
+        return image.reshape(height, width, 3).astype(np.float32), field, info
 
     # --- one pass -----------------------------------------------------------------------------
 
@@ -239,31 +325,29 @@ class GuidedPathTracer:
 
     def _pass(self, scene, sensor, spp, rng, field, image_stats, record):
         """One pass of ``spp`` samples per pixel, in waves of at most ``MAX_LANES`` camera
-        samples; adds its camera samples to ``image_stats`` and returns its image (H, W, 3),
-        the rays it traced, and the variance of its image's mean per channel."""
+        samples; adds its camera samples to ``image_stats`` and returns its
+        :class:`PassSums` and the rays it traced."""
         width, height = (int(v) for v in sensor.film().crop_size())
         pixels = width * height
         per_wave = max(1, min(spp, MAX_LANES // pixels))
-        image = np.zeros((pixels, 3), np.float64)
-        squares = np.zeros((pixels, 3), np.float64)
-        done, rays_traced = 0, 0
-        while done < spp:
-            k = min(per_wave, spp - done)
+        sums = PassSums.empty(pixels)
+        rays_traced = 0
+        while sums.spp < spp:
+            k = min(per_wave, spp - sums.spp)
             estimates, rays = self._wave(
                 scene, sensor, width, height, k, rng, field, image_stats, record
             )
             pixel = np.repeat(np.arange(pixels, dtype=np.uint32), k)
-            image_stats.add(pixel, _f32(_luminance(estimates)), _f32(rays))
-            image += estimates.reshape(pixels, k, 3).sum(axis=1)
-            squares += (estimates**2).reshape(pixels, k, 3).sum(axis=1)
+            luminance = _luminance(estimates)
+            image_stats.add(pixel, _f32(luminance), _f32(rays))
+            sums.rgb += estimates.reshape(pixels, k, 3).sum(axis=1)
+            sums.rgb_squares += (estimates**2).reshape(pixels, k, 3).sum(axis=1)
+            sums.luminance += luminance.reshape(pixels, k).sum(axis=1)
+            sums.luminance_squares += (luminance**2).reshape(pixels, k).sum(axis=1)
             rays_traced += int(rays.sum())
-            done += k
+            sums.spp += k
         image_stats.end_pass()
-        # The variance of the image's mean, from each pixel's sample variance (its camera
-        # samples are independent given the field and the image terms the pass started with).
-        pixel_variance = (squares - image**2 / spp) / max(spp - 1, 1)
-        mean_variance = pixel_variance.sum(axis=0) / spp / pixels**2
-        return (image / spp).reshape(height, width, 3), rays_traced, mean_variance
+        return sums, rays_traced
 
     def _wave(
         self, scene, sensor, width, height, spp, rng, field, image_stats, record, estimates=False
@@ -517,4 +601,12 @@ def relative_mse(image: np.ndarray, reference: np.ndarray, eps: float = 1e-2) ->
     return float(np.mean((image - reference) ** 2 / (reference**2 + eps)))
 
 
-__all__ = ["GuidedPathTracer", "RenderInfo", "register", "relative_mse", "set_variant", "MAX_LANES"]
+__all__ = [
+    "GuidedPathTracer",
+    "PassSums",
+    "RenderInfo",
+    "register",
+    "relative_mse",
+    "set_variant",
+    "MAX_LANES",
+]

@@ -5,13 +5,16 @@
 //! from then on `GuidingField.splitting_factor` gives each vertex's factor `q` from its cell's
 //! continuation estimate, its throughput and its pixel, and `continuations` rounds it to a
 //! number of continuations and their weight. See the Rust `Splitting` for the derivation.
+//!
+//! `pass_weights` combines a render's passes (training passes with the final render) into one
+//! image by inverse variance, from the same per-pixel sums.
 
 use crate::arrays::{Input, input, optional};
 use crate::errors::config_error;
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use sdguide::{ImageStatistics, SplittingMode};
+use sdguide::{ImageStatistics, PixelSums, SplittingMode};
 
 /// A render's camera samples per pixel over its passes, and the image terms of the
 /// efficiency-aware factor they give for the next pass.
@@ -133,4 +136,40 @@ pub fn continuations<'py>(
         PyArray1::from_vec(py, traced),
         PyArray1::from_vec(py, weights),
     ))
+}
+
+/// The weights `(K,)` float64 that combine `K` passes of a `width × height` image by inverse
+/// variance (`Σₖ wₖ · sumsₖ/countsₖ` per pixel, `Σ wₖ = 1`; see the Rust `pass_weights`), or
+/// `None` when no pass can be weighed. `sums` and `squares` are `(K, H·W)` float64: each
+/// pass's per-pixel sums of its samples' luminance and squared luminance; `counts` is
+/// `(K, H·W)` uint32, the samples per pixel. Passes come oldest first, the final render last.
+/// A pass with a pixel of fewer than two samples, or with a NaN in its sums, gets weight 0.
+#[pyfunction]
+pub fn pass_weights<'py>(
+    py: Python<'py>,
+    width: usize,
+    height: usize,
+    sums: &Bound<'py, PyAny>,
+    squares: &Bound<'py, PyAny>,
+    counts: &Bound<'py, PyAny>,
+) -> PyResult<Option<Bound<'py, PyArray1<f64>>>> {
+    let pixels = width.saturating_mul(height);
+    let sums: Input<f64> = input(sums, "sums", None, Some(pixels))?;
+    let passes = sums.slice().len() / pixels.max(1);
+    let squares: Input<f64> = input(squares, "squares", Some(passes), Some(pixels))?;
+    let counts: Input<u32> = input(counts, "counts", Some(passes), Some(pixels))?;
+    let sums: Vec<PixelSums> = sums
+        .slice()
+        .iter()
+        .zip(squares.slice())
+        .zip(counts.slice())
+        .map(|((&sum, &sum_sq), &count)| PixelSums {
+            sum,
+            sum_sq,
+            cost: 0.0,
+            count,
+        })
+        .collect();
+    let views: Vec<&[PixelSums]> = sums.chunks(pixels.max(1)).take(passes).collect();
+    Ok(sdguide::pass_weights(width, height, &views).map(|w| PyArray1::from_vec(py, w)))
 }

@@ -7,7 +7,8 @@
 //! - `field`: `GuidingField` — queries and `record` over lanes, refine, cache, merge, stats.
 //! - `path`: `PathRecorderBatch` — one path recorder per lane, driven a bounce at a time.
 //! - `image`: `ImageStatistics`, the splitting factor over lanes and `continuations`: the
-//!   efficiency-aware roulette and splitting.
+//!   efficiency-aware roulette and splitting; `pass_weights`: passes combined by inverse
+//!   variance.
 //! - `errors`: the typed exceptions.
 
 mod arrays;
@@ -24,6 +25,7 @@ fn _sdguide(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<path::PyPathRecorderBatch>()?;
     m.add_class::<image::PyImageStatistics>()?;
     m.add_function(wrap_pyfunction!(image::continuations, m)?)?;
+    m.add_function(wrap_pyfunction!(image::pass_weights, m)?)?;
     errors::register(m)?;
     m.add(
         "FORMAT_VERSION",

@@ -69,3 +69,18 @@ def test_plugin_renders_with_mi_render():
     integrator = mi.load_dict({"type": "sdguide", "training_passes": 2, "max_depth": 6})
     image = np.array(mi.render(scene, integrator=integrator, spp=4))
     assert image.shape == (16, 16, 3) and np.all(np.isfinite(image)) and image.mean() > 0.05
+
+
+def test_training_passes_join_the_image_by_inverse_variance():
+    # The combined image's standard error is below the final render's alone, its weights sum
+    # to one, and the 1-spp pass (no variance estimate) has none.
+    scene = mi.load_dict(scenes.build("cornell", 16))
+    tracer = GuidedPathTracer(max_depth=6, training_passes=4)
+    _, _, info = tracer.render(scene, spp=8, seed=2)
+    assert len(info.weights) == 5 and info.weights[0] == 0.0
+    assert abs(sum(info.weights) - 1.0) < 1e-12 and all(w > 0 for w in info.weights[1:])
+    _, combined_error = info.image_mean()
+    final_error = np.sqrt(info.pass_variances[-1])
+    assert np.all(combined_error < final_error), (combined_error, final_error)
+    image, _, alone = tracer.render(scene, spp=8, seed=2, combine=False)
+    assert alone.weights == [0.0] * 4 + [1.0] and np.all(np.isfinite(image))

@@ -163,3 +163,29 @@ def test_continuations_round_stochastically():
     u = np.random.default_rng(9).random(200_000, dtype=np.float32)
     traced, _ = sdguide.continuations(f32(np.full(200_000, 1.3)), u)
     assert abs(traced.mean() - 1.3) < 5.0 * np.sqrt(0.21 / 200_000)
+
+
+def test_pass_weights_are_inverse_variances_and_bad_arrays_raise():
+    # One pixel, passes of n samples of 0 and 2: the pixel mean's variance is 1/(n − 1), so
+    # passes of 4 and 12 samples weigh 3 : 11 (the Rust doc example); a 1-sample pass, 0.
+    def passes(*ns):
+        n = np.array(ns, np.float64)[:, None]
+        return n, 2.0 * n, n.astype(np.uint32)
+
+    w = sdguide.pass_weights(1, 1, *passes(4, 12))
+    np.testing.assert_allclose(w, [3 / 14, 11 / 14], rtol=1e-12)
+    w = sdguide.pass_weights(1, 1, *passes(1, 4, 12))
+    np.testing.assert_allclose(w, [0.0, 3 / 14, 11 / 14], rtol=1e-12)
+    assert sdguide.pass_weights(1, 1, *passes(1)) is None
+    sums, squares, counts = passes(4, 12)
+    squares[0, 0] = np.nan  # a NaN pass is left out, not spread
+    np.testing.assert_allclose(sdguide.pass_weights(1, 1, sums, squares, counts), [0.0, 1.0])
+    sums, squares, counts = passes(4, 12)
+    for bad in (
+        (sums.astype(np.float32), squares, counts),  # float32 sums
+        (sums, squares[:1], counts),  # a pass short
+        (sums, squares, counts.astype(np.int64)),
+        (np.ones((2, 2)), np.ones((2, 2)), np.ones((2, 2), np.uint32)),  # 2 pixels, not 1
+    ):
+        with pytest.raises(ValueError):
+            sdguide.pass_weights(1, 1, *bad)

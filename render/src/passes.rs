@@ -1,19 +1,12 @@
 //! The images of a render's passes, and their combination by inverse variance.
 //!
 //! A guided render spends part of its budget on training passes, whose images are as unbiased
-//! as the final render's, only noisier (the guide was still learning). Averaging them in by
-//! sample count would let the early, noisy passes spoil the final one; weighting each pass by
-//! the inverse of its image's variance (Müller et al. 2019, "Practical path guiding in
-//! production") is the combination that minimizes the variance of the weighted mean of
-//! independent unbiased estimates, `Σ wᵢ·Iᵢ / Σ wᵢ` with `wᵢ = 1 / Vᵢ`.
-//!
-//! A pass's variance `Vᵢ` is estimated from its own samples: the mean over pixels of each
-//! pixel mean's variance, from the pixel's sums of luminance and squared luminance. The
-//! weights therefore depend on the images they weigh, but each is one number pooled over every
-//! pixel of a pass, so its correlation with any one pixel — the bias it brings — falls as one
-//! over the pixel count; the demo's "mean vs reference" column measures what remains. A pass of
-//! one sample per pixel has no within-pixel variance to estimate and is left out (it is the
-//! first training pass, under 1% of the training samples).
+//! as the final render's, only noisier (the guide was still learning). The library's
+//! [`pass_weights`] weighs each by the inverse of its variance (Müller et al. 2019), the
+//! combination of independent unbiased estimates with the least variance; a pass of one sample
+//! per pixel has no variance to estimate and is left out (the first training pass, under 1% of
+//! the training samples). The "mean vs reference" column of the demo's report measures what
+//! bias the weights' dependence on the images brings.
 //!
 //! The same passes give efficiency-aware roulette and splitting what it needs of the image
 //! ([`splitting`]): each pixel's estimated value, the image's relative variance per sample and
@@ -22,7 +15,7 @@
 use crate::image::Image;
 use crate::material::luminance;
 use glam::Vec3;
-use sdguide::{ImageStatistics, PixelSums, Splitting, SplittingMode};
+use sdguide::{ImageStatistics, PixelSums, Splitting, SplittingMode, pass_weights};
 
 /// The sums of one pass's samples, per pixel.
 #[derive(Clone, Debug)]
@@ -62,50 +55,29 @@ impl PassImage {
         image
     }
 
-    /// The variance of the pass's image, averaged over its pixels (luminance): the mean of
-    /// `s² / n` with `s²` a pixel's sample variance and `n` the samples per pixel. `None` below
-    /// two samples per pixel.
-    pub fn variance(&self) -> Option<f64> {
-        self.weighted_variance(None)
-    }
-
-    /// [`variance`](Self::variance) with each pixel weighed by `weights` (none: by 1).
-    fn weighted_variance(&self, weights: Option<&[f64]>) -> Option<f64> {
-        if self.spp < 2 {
-            return None;
-        }
-        let n = self.spp as f64;
-        let total: f64 = self
-            .sum
+    /// The pass's sums per pixel in luminance, as the library's image statistics take them.
+    pub fn pixel_sums(&self) -> Vec<PixelSums> {
+        self.sum
             .pixels
             .iter()
             .zip(&self.squares)
-            .enumerate()
-            .map(|(p, (s, &q))| {
-                let s = luminance(*s) as f64;
-                let w = weights.map_or(1.0, |w| w[p]);
-                w * ((q - s * s / n) / (n - 1.0)).max(0.0) / n
+            .map(|(s, &sum_sq)| PixelSums {
+                sum: f64::from(luminance(*s)),
+                sum_sq,
+                cost: 0.0,
+                count: self.spp,
             })
-            .sum();
-        Some(total / self.squares.len().max(1) as f64)
+            .collect()
     }
 }
 
-/// The passes' images combined by inverse variance; passes without a variance estimate, or
-/// with a zero or non-finite one, are left out. `None` when no pass can be weighed.
+/// The passes' images (oldest first, the last the render's own) combined by inverse variance,
+/// by the library's [`pass_weights`] on their luminance (see it for how each pass's variance
+/// is estimated). `None` when no pass can be weighed.
 ///
-/// The variances are relative, as the image's error is: each pixel's is divided by
-/// `Ĩ² + ε`, with `Ĩ` the last pass's smoothed luminance, so that a pass noisy in the dark
-/// pixels, which the relative error weighs most, is not weighed by its bright ones.
-///
-/// `passes` come oldest first, the last one the render's own (the most samples, in the demo).
-/// The variance of every other pass is taken from how far its image lies from the last's:
-/// `E[(Iᵢ − I_last)²] = Vᵢ + V_last` per pixel, so the mean over pixels of `(Iᵢ − I_last)²`
-/// less `V_last` estimates `Vᵢ` — at least the pass's own estimate. The variance of a
-/// path-traced pixel is heavy-tailed, and a pass of few samples mostly underestimates its own
-/// from its samples, which would give it far more than its share; its distance from the last
-/// pass counts the outliers it did draw (measured on `door` with splitting: combined with its
-/// training passes by their own estimates, the final image's relMSE of 0.50 became 0.66–0.92).
+/// Measured on `door` with splitting: combined with its training passes by their own variance
+/// estimates alone, without the distance from the last pass, the final image's relMSE of 0.50
+/// became 0.66–0.92.
 pub fn combine(passes: &[PassImage]) -> Option<Image> {
     combine_all(passes)
 }
@@ -113,46 +85,18 @@ pub fn combine(passes: &[PassImage]) -> Option<Image> {
 /// [`combine`] of passes held anywhere, oldest first.
 pub fn combine_all<'a>(passes: impl IntoIterator<Item = &'a PassImage>) -> Option<Image> {
     let passes: Vec<&PassImage> = passes.into_iter().collect();
-    let last = *passes.last()?;
-    let last_mean = last.mean();
-    let mut smoothed = ImageStatistics::new(last_mean.width, last_mean.height);
-    smoothed.set_estimate(Some(&luminances(&last_mean)));
-    let relative: Vec<f64> = (0..last_mean.pixels.len())
-        .map(|p| 1.0 / f64::from(smoothed.pixel(p)).powi(2))
-        .collect();
-    let weights = Some(relative.as_slice());
-    let last_variance = last.weighted_variance(weights);
-    let weighed: Vec<(f64, &PassImage)> = passes
-        .iter()
-        .enumerate()
-        .filter_map(|(i, &p)| {
-            let own = p.weighted_variance(weights)?;
-            let v = match last_variance {
-                Some(v_last) if i + 1 < passes.len() => {
-                    let mean = p.mean();
-                    let distance = mean
-                        .pixels
-                        .iter()
-                        .zip(&last_mean.pixels)
-                        .zip(&relative)
-                        .map(|((&a, &b), &w)| w * f64::from(luminance(a) - luminance(b)).powi(2))
-                        .sum::<f64>()
-                        / mean.pixels.len().max(1) as f64;
-                    own.max(distance - v_last)
-                }
-                _ => own,
-            };
-            (v > 0.0 && v.is_finite()).then_some((1.0 / v, p))
-        })
-        .collect();
-    let (_, first) = weighed.first()?;
-    let total: f64 = weighed.iter().map(|(w, _)| w).sum();
-    let mut combined = Image::new(first.sum.width, first.sum.height);
-    for (w, pass) in &weighed {
-        // The pass's weight, applied to its sums: its mean is the sum over its samples.
-        let share = (w / total / f64::from(pass.spp)) as f32;
-        for (c, s) in combined.pixels.iter_mut().zip(&pass.sum.pixels) {
-            *c += *s * share;
+    let sums: Vec<Vec<PixelSums>> = passes.iter().map(|p| p.pixel_sums()).collect();
+    let views: Vec<&[PixelSums]> = sums.iter().map(Vec::as_slice).collect();
+    let last = passes.last()?;
+    let weights = pass_weights(last.sum.width, last.sum.height, &views)?;
+    let mut combined = Image::new(last.sum.width, last.sum.height);
+    for (w, pass) in weights.iter().zip(&passes) {
+        if *w > 0.0 {
+            // The pass's weight, applied to its sums: its mean is the sum over its samples.
+            let share = (w / f64::from(pass.spp)) as f32;
+            for (c, s) in combined.pixels.iter_mut().zip(&pass.sum.pixels) {
+                *c += *s * share;
+            }
         }
     }
     Some(combined)
@@ -193,17 +137,8 @@ pub fn splitting(passes: &[&PassImage], mode: SplittingMode) -> Option<PixelEsti
     let mut image = ImageStatistics::new(width, height);
     // The pass's sums, its rays spread evenly (only their mean per sample is used).
     let cost = latest.rays / (width * height).max(1) as f64;
-    for (p, (s, &squares)) in image
-        .pass_mut()
-        .iter_mut()
-        .zip(latest.sum.pixels.iter().zip(&latest.squares))
-    {
-        *p = PixelSums {
-            sum: f64::from(luminance(*s)),
-            sum_sq: squares,
-            cost,
-            count: latest.spp,
-        };
+    for (p, sums) in image.pass_mut().iter_mut().zip(latest.pixel_sums()) {
+        *p = PixelSums { cost, ..sums };
     }
     image.set_estimate(Some(&luminances(&combined)));
     image.end_pass();
