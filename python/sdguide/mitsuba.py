@@ -114,6 +114,20 @@ class PassSums:
         zeros = np.zeros(pixels, np.float64)
         return cls(np.zeros((pixels, 3)), np.zeros((pixels, 3)), zeros, zeros.copy())
 
+    @classmethod
+    def of_samples(cls, estimates: np.ndarray, luminance: np.ndarray, spp: int) -> PassSums:
+        """The sums of ``spp`` samples per pixel: ``estimates`` ``(pixels·spp, 3)`` RGB and
+        their ``luminance`` ``(pixels·spp,)``, pixel ``p``'s samples at rows ``p·spp`` to
+        ``p·spp + spp − 1``."""
+        pixels = len(luminance) // spp
+        return cls(
+            estimates.reshape(pixels, spp, 3).sum(axis=1),
+            (estimates**2).reshape(pixels, spp, 3).sum(axis=1),
+            luminance.reshape(pixels, spp).sum(axis=1),
+            (luminance**2).reshape(pixels, spp).sum(axis=1),
+            spp,
+        )
+
     def add(self, other: PassSums) -> None:
         """Pools ``other``'s samples into this pass."""
         self.rgb += other.rgb
@@ -340,12 +354,8 @@ class GuidedPathTracer:
             pixel = np.repeat(np.arange(pixels, dtype=np.uint32), k)
             luminance = _luminance(estimates)
             image_stats.add(pixel, _f32(luminance), _f32(rays))
-            sums.rgb += estimates.reshape(pixels, k, 3).sum(axis=1)
-            sums.rgb_squares += (estimates**2).reshape(pixels, k, 3).sum(axis=1)
-            sums.luminance += luminance.reshape(pixels, k).sum(axis=1)
-            sums.luminance_squares += (luminance**2).reshape(pixels, k).sum(axis=1)
+            sums.add(PassSums.of_samples(estimates, luminance, k))
             rays_traced += int(rays.sum())
-            sums.spp += k
         image_stats.end_pass()
         return sums, rays_traced
 
