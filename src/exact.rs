@@ -26,6 +26,8 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 pub(crate) const FRACTION_BITS: i32 = 40;
 /// Units per 1.0.
 const SCALE: f64 = (1u64 << FRACTION_BITS) as f64;
+/// `1 / SCALE`, exact (a power of 2): a multiply where a division would cost more.
+const UNIT: f64 = 1.0 / SCALE;
 /// The largest term, in units (`2^88`, a value of `2^48`).
 const MAX_TERM_UNITS: u128 = 1 << 88;
 /// The largest term as a value (`2^48`): a weight above it is clamped.
@@ -91,7 +93,7 @@ pub(crate) fn signed_units(x: f64) -> u128 {
 /// the high word is 0; within an ulp otherwise, and a function of the integer alone).
 #[inline]
 fn units_value(u: u128) -> f64 {
-    ((u >> 64) as u64 as f64 * WORD + u as u64 as f64) / SCALE
+    ((u >> 64) as u64 as f64 * WORD + u as u64 as f64) * UNIT
 }
 
 /// A non-negative exact sum, in units of `2^-40`, saturating at `2^126` units.

@@ -119,6 +119,18 @@ fn cell_area(depth: u32) -> f64 {
     f64::from_bits(u64::from(1023 - 2 * depth) << 52)
 }
 
+/// `2^-depth`, the side of a cell at `depth` (exactly `cell_area(depth).sqrt()`).
+#[inline]
+fn cell_side(depth: u32) -> f64 {
+    f64::from_bits(u64::from(1023 - depth) << 52)
+}
+
+/// `4^depth`, the cells of `depth` per unit area (exactly `1 / cell_area(depth)`).
+#[inline]
+fn cells_per_area(depth: u32) -> f64 {
+    f64::from_bits(u64::from(1023 + 2 * depth) << 52)
+}
+
 /// A directional cell: the square `[origin, origin + size)` of the unit square at `depth` (the
 /// root's children are at depth 1).
 #[derive(Clone, Copy, Debug, PartialEq)]

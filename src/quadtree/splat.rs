@@ -4,7 +4,7 @@
 //! each leaf quadrant's pending sums at `refine` (`spread_pending`). Both cut the square along
 //! the grid of leaf-sized cells and look each part up from the chain of nodes down to the leaf.
 
-use super::{FIXED_BITS, LEAF_BIT, RecordingTree, cell_area, fixed, fixed_f64};
+use super::{FIXED_BITS, LEAF_BIT, RecordingTree, cell_side, cells_per_area, fixed, fixed_f64};
 use crate::filter::overlap;
 use crate::moments::AtomicSums;
 use crate::sphere;
@@ -19,6 +19,42 @@ fn grid_cut([a, b]: [f64; 2], size: f64) -> [Option<[f64; 2]>; 2] {
     } else {
         [Some([a, b]), None]
     }
+}
+
+/// Weights `(w1, w2)` per unit area times the area of the piece `x × y`.
+#[inline]
+fn share((w1, w2): (f64, f64), x: [f64; 2], y: [f64; 2]) -> (f64, f64) {
+    let area = (x[1] - x[0]) * (y[1] - y[0]);
+    (w1 * area, w2 * area)
+}
+
+/// The centre of the piece `x × y`.
+#[inline]
+fn middle(x: [f64; 2], y: [f64; 2]) -> [f64; 2] {
+    [0.5 * (x[0] + x[1]), 0.5 * (y[0] + y[1])]
+}
+
+/// One axis of a leaf-sized square `[c − size/2, c + size/2)` centred in the leaf whose side
+/// starts at `corner`, cut where [`grid_cut`] cuts it: the leaf's part, and its neighbour's
+/// (none when the square ends on the leaf's side). `None` where the square leaves the unit
+/// square, which only the fold handles.
+#[inline]
+fn interior_cut(c: f64, corner: f64, size: f64) -> Option<([f64; 2], Option<[f64; 2]>)> {
+    let h = 0.5 * size;
+    let (a, b) = (c - h, c + h);
+    if a < 0.0 || b > 1.0 {
+        return None;
+    }
+    Some(if a < corner {
+        ([corner, b], Some([a, corner]))
+    } else {
+        let line = corner + size;
+        if line < b {
+            ([a, line], Some([line, b]))
+        } else {
+            ([a, b], None)
+        }
+    })
 }
 
 /// An interior node of a recording tree with its cell, where a box filter's walk starts.
@@ -72,7 +108,7 @@ impl Ancestry {
 
     /// The leaf's side.
     fn side(&self) -> f64 {
-        cell_area(self.depth).sqrt()
+        cell_side(self.depth)
     }
 
     /// The leaf's cell: its corner with the smallest coordinates.
@@ -83,7 +119,7 @@ impl Ancestry {
     /// The corner of the cell at depth `d` that holds the leaf (`d` at most the leaf's depth).
     fn corner_at(&self, d: u32) -> [f64; 2] {
         let shift = FIXED_BITS - d;
-        self.at.map(|c| f64::from(c >> shift) * cell_area(d).sqrt())
+        self.at.map(|c| f64::from(c >> shift) * cell_side(d))
     }
 
     /// Whether the point `p` lies in the leaf's cell.
@@ -113,7 +149,7 @@ impl Ancestry {
                     node: self.nodes[d as usize],
                     x,
                     y,
-                    cell: cell_area(d).sqrt(),
+                    cell: cell_side(d),
                     depth: d,
                 }
             })
@@ -277,6 +313,52 @@ impl RecordingTree {
         &self,
         chain: &Ancestry,
         centre: [f64; 2],
+        weights: (f64, f64),
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) -> (f64, f64) {
+        self.spread_interior(chain, centre, weights, add)
+            .unwrap_or_else(|| self.spread_folded(chain, centre, weights, add))
+    }
+
+    /// [`spread_square`](Self::spread_square) for a square inside the unit square (`None`
+    /// and nothing added otherwise), nearly every sample's: each axis cut in at most two at
+    /// the leaf's side, as [`spread_folded`](Self::spread_folded) cuts it, with the leaf's own
+    /// part known without a test and nothing folded: the same shares, to the bit, without the
+    /// fold, the floors of the grid cut or the point-in-leaf tests.
+    #[inline]
+    fn spread_interior(
+        &self,
+        chain: &Ancestry,
+        centre: [f64; 2],
+        weights: (f64, f64),
+        add: &mut impl FnMut(usize, (f64, f64)),
+    ) -> Option<(f64, f64)> {
+        let (size, corner) = (chain.side(), chain.corner());
+        let (own_x, next_x) = interior_cut(centre[0], corner[0], size)?;
+        let (own_y, next_y) = interior_cut(centre[1], corner[1], size)?;
+        let mut near = |x: [f64; 2], y: [f64; 2]| {
+            let k = chain.leaf_near(self, fixed_f64(middle(x, y)));
+            add(k, share(weights, x, y));
+        };
+        if let Some(x) = next_x {
+            near(x, own_y);
+            if let Some(y) = next_y {
+                near(x, y);
+            }
+        }
+        if let Some(y) = next_y {
+            near(own_x, y);
+        }
+        Some(share(weights, own_x, own_y))
+    }
+
+    /// [`spread_square`](Self::spread_square) for any square: its part inside the unit square
+    /// cut along the grid of leaf-sized cells, the parts past the border folded back in and
+    /// walked from the deepest node of the chain that holds them.
+    fn spread_folded(
+        &self,
+        chain: &Ancestry,
+        centre: [f64; 2],
         (w1, w2): (f64, f64),
         add: &mut impl FnMut(usize, (f64, f64)),
     ) -> (f64, f64) {
@@ -290,9 +372,8 @@ impl RecordingTree {
         if let Some([x, y]) = inside {
             for x in grid_cut(x, size).into_iter().flatten() {
                 for y in grid_cut(y, size).into_iter().flatten() {
-                    let area = (x[1] - x[0]) * (y[1] - y[0]);
-                    let part = (w1 * area, w2 * area);
-                    let mid = [0.5 * (x[0] + x[1]), 0.5 * (y[0] + y[1])];
+                    let part = share((w1, w2), x, y);
+                    let mid = middle(x, y);
                     if chain.leaf_holds(mid) {
                         own = (own.0 + part.0, own.1 + part.1);
                     } else {
@@ -333,7 +414,7 @@ impl RecordingTree {
         let (k, depth, q) = self.descend(p, |d, node| chain.nodes[d as usize] = node);
         chain.depth = depth;
         if w1 != 0.0 {
-            let per_area = 1.0 / cell_area(depth);
+            let per_area = cells_per_area(depth);
             let centre = [f64::from(s.x), f64::from(s.y)];
             let own = self.spread_square(&chain, centre, (w1 * per_area, w2 * per_area), add);
             add(k, own);
