@@ -18,6 +18,13 @@ use std::time::{Duration, Instant};
 /// methods pass it unless `--guide-cost` says otherwise.
 pub const GUIDE_COST: f32 = 0.25;
 
+/// The guided method the demo recommends, and its report's verdict reads: the l2 rule for the
+/// guide–BSDF mixture's estimator (a renderer samples the guide in that mixture), with the
+/// library's efficiency-aware roulette and splitting. Per sample it is ahead of the l1 and
+/// plain l2 rules on every scene with that roulette (docs/render.md, "The rule inside the
+/// mixture"); plain l2, the library's default rule, is for throughput roulette.
+pub const RECOMMENDED: (Method, Rrs) = (Method::Guided(LeafRule::L2Mixture), Rrs::Ears);
+
 /// How a method decides how many continuations to trace from a vertex.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Rrs {

@@ -96,7 +96,7 @@ fn without_rule_and_roulette_the_recommended_comparison_runs() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "{stderr}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    let expected = ["unguided", "unguided-ears", "guided-l2-ears"];
+    let expected = ["unguided", "unguided-ears", "guided-l2m-ears"];
     assert_eq!(method_rows(&report), expected, "{report}");
     std::fs::remove_dir_all(&out).unwrap();
 }
@@ -127,9 +127,9 @@ fn training_and_rendering_give_the_same_bytes_whatever_the_thread_count() {
     // images (the PNGs; the EXRs' compression runs in parallel and orders its blocks as
     // they finish).
     let files = [
-        "door-guided-l2-ears.sdgc",
+        "door-guided-l2m-ears.sdgc",
         "door-unguided-ears.sdgc",
-        "door-guided-l2-ears.png",
+        "door-guided-l2m-ears.png",
         "door-unguided.png",
     ];
     let runs: Vec<Vec<Vec<u8>>> = ["1", "2", "5"]

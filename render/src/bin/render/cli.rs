@@ -2,7 +2,7 @@
 
 use clap::{Parser, ValueEnum};
 use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement};
-use sdguide_render::method::{Budget, GUIDE_COST, Method, Rrs};
+use sdguide_render::method::{Budget, GUIDE_COST, Method, RECOMMENDED, Rrs};
 use sdguide_render::scenes;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -27,7 +27,7 @@ struct Cli {
     spp: Option<u32>,
     /// Leaf rules of the guided methods (`both`: l1 and l2; `all`: l1, l2 and l2m). Without
     /// `--rule` and `--rrs`: the recommended comparison (unguided with classic roulette, and
-    /// unguided and guided by the l2 rule with efficiency-aware roulette and splitting); with
+    /// unguided and guided by the l2m rule with efficiency-aware roulette and splitting); with
     /// only one of them, the other is `both` or `classic`.
     #[arg(long, value_enum, value_delimiter = ',')]
     rule: Option<Vec<RuleArg>>,
@@ -145,7 +145,8 @@ pub struct Args {
 impl Args {
     /// The methods to render, unguided with classic roulette first (the baseline of every
     /// ratio): the recommended comparison — unguided with classic roulette, unguided with
-    /// efficiency-aware roulette and splitting, and guided by the default rule with them —
+    /// efficiency-aware roulette and splitting, and [`RECOMMENDED`] (guided by the l2m rule
+    /// with them) —
     /// or every rule with every roulette asked for, beside unguided with each; then the peer's
     /// methods, each with the roulettes asked for that do not split (classic if none such is;
     /// in the recommended comparison, classic and its own guided roulette).
@@ -154,7 +155,7 @@ impl Args {
             vec![
                 (Method::Unguided, Rrs::Classic),
                 (Method::Unguided, Rrs::Ears),
-                (Method::Guided(GuidingConfig::default().rule), Rrs::Ears),
+                RECOMMENDED,
             ]
         } else {
             // Guided roulette is the peer's alone.

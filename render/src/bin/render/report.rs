@@ -2,9 +2,9 @@
 //! the probe and cost reports of a trained cache.
 
 use crate::cli::Args;
-use sdguide::{GuidingConfig, GuidingField};
+use sdguide::GuidingField;
 use sdguide_render::cost::paired_cost;
-use sdguide_render::method::{Method, Outcome, Rrs};
+use sdguide_render::method::{Method, Outcome, RECOMMENDED};
 use sdguide_render::reference;
 use sdguide_render::scene::Scene;
 use std::fmt::Write as _;
@@ -297,12 +297,11 @@ fn spread(v: &[f64]) -> String {
     }
 }
 
-/// The report's opening line: per scene, what the recommended configuration — the default
-/// rule with efficiency-aware roulette and splitting — bought at equal time, training
+/// The report's opening line: per scene, what the recommended configuration ([`RECOMMENDED`]:
+/// the l2m rule with efficiency-aware roulette and splitting) bought at equal time, training
 /// included, against unguided path tracing with classic roulette and with the same roulette
 /// and splitting (mean and range over seeds). Empty when the run has no such method.
 pub fn verdict(scenes: &[(String, Vec<Run>)]) -> String {
-    let recommended = (Method::Guided(GuidingConfig::default().rule), Rrs::Ears);
     let mut lines = Vec::new();
     for (name, runs) in scenes {
         let (mut classic, mut same) = (Vec::new(), Vec::new());
@@ -310,7 +309,7 @@ pub fn verdict(scenes: &[(String, Vec<Run>)]) -> String {
             let Some(i) = run
                 .outcomes
                 .iter()
-                .position(|r| (r.outcome.method, r.outcome.rrs) == recommended)
+                .position(|r| (r.outcome.method, r.outcome.rrs) == RECOMMENDED)
             else {
                 continue;
             };
@@ -339,8 +338,8 @@ pub fn verdict(scenes: &[(String, Vec<Run>)]) -> String {
         return String::new();
     }
     format!(
-        "**Verdict.** Guided by sdguide (the l2 rule, with its efficiency-aware roulette and \
-         splitting), at equal time, training included: {}.\n\n",
+        "**Verdict.** Guided by sdguide (the l2 rule for the guide–BSDF mixture, with its \
+         efficiency-aware roulette and splitting), at equal time, training included: {}.\n\n",
         lines.join("; ")
     )
 }
