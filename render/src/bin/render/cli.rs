@@ -146,10 +146,9 @@ impl Args {
     /// The methods to render, unguided with classic roulette first (the baseline of every
     /// ratio): the recommended comparison — unguided with classic roulette, unguided with
     /// efficiency-aware roulette and splitting, and [`RECOMMENDED`] (guided by the l2m rule
-    /// with them) —
-    /// or every rule with every roulette asked for, beside unguided with each; then the peer's
-    /// methods, each with the roulettes asked for that do not split (classic if none such is;
-    /// in the recommended comparison, classic and its own guided roulette).
+    /// with them) — or every rule with every roulette asked for, beside unguided with each;
+    /// then the peer's methods, each with the roulettes asked for that do not split (classic if
+    /// none such is; in the recommended comparison, classic and its own guided roulette).
     pub fn methods(&self) -> Vec<(Method, Rrs)> {
         let mut methods: Vec<(Method, Rrs)> = if self.recommended {
             vec![
