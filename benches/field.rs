@@ -16,7 +16,7 @@ use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_mai
 use glam::{Vec2, Vec3};
 use sdguide::{
     Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, PathRecorder,
-    PathVertex, Refinement, Sample, SpatialFilter,
+    PathVertex, Refinement, Sample, SpatialFilter, SpatialSplit,
 };
 use sdguide_lab::rng::Rng;
 use sdguide_lab::synthetic::{LightField, Workload, room_bounds, room_point, room_vertex};
@@ -120,6 +120,15 @@ fn bench_record(c: &mut Criterion) {
         let batch = samples(&variant);
         g.bench_function(name, |b| b.iter(|| variant.record_all(black_box(&batch))));
     }
+    // Spatial splits by gain: the split signature besides the default's sums.
+    let by_gain = trained_with(GuidingConfig {
+        spatial_split: SpatialSplit::Gain,
+        ..GuidingConfig::default()
+    });
+    let gain_batch = samples(&by_gain);
+    g.bench_function("1-thread, spatial splits by gain", |b| {
+        b.iter(|| by_gain.record_all(black_box(&gain_batch)))
+    });
     let with_mixture: Vec<Sample> = batch
         .iter()
         .map(|s| s.with_mixture(s.value * 0.3, 0.3, s.pdf))

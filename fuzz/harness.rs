@@ -8,7 +8,7 @@
 use glam::{Vec2, Vec3};
 use sdguide::{
     Aabb, Continuation, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, PathRecorder,
-    PathVertex, Refinement, Sample, SpatialFilter, VertexId,
+    PathVertex, Refinement, Sample, SpatialFilter, SpatialSplit, VertexId,
 };
 
 /// At most this many operations, refines and save–load round trips per input, and a memory
@@ -242,6 +242,11 @@ fn field_from(b: &mut Bytes<'_>) -> Option<GuidingField> {
     } else {
         config.refinement = Refinement::VarianceGain;
         config.gain_threshold = config.subdivision_threshold;
+    }
+    // Bit 6 splits spatial leaves by gain; the arbitrary ρ doubles as its τ too.
+    if filters & 64 != 0 {
+        config.spatial_split = SpatialSplit::Gain;
+        config.spatial_gain_threshold = config.subdivision_threshold;
     }
     GuidingField::new(bounds, config).ok()
 }

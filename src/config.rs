@@ -6,6 +6,7 @@ use crate::guide_probability::{
 };
 use crate::refinement::Refinement;
 use crate::rule::LeafRule;
+use crate::spatial_split::SpatialSplit;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -41,6 +42,14 @@ pub struct GuidingConfig {
     /// `c` gives fewer, larger cells: a smaller field with cheaper queries, and a guide that
     /// follows the light's change with position less closely (`docs/render.md` measures it).
     pub spatial_threshold: f32,
+    /// Which spatial leaves split at refine (default [`SpatialSplit::Count`], the rule above).
+    /// [`SpatialSplit::Gain`] splits where a leaf's halves see different light.
+    pub spatial_split: SpatialSplit,
+    /// `τ` of [`SpatialSplit::Gain`]: a spatial cell splits when its split lowers the
+    /// estimator's second moment over the cell by more than `τ` of it, beyond what the noise
+    /// of its sums gains (default 0.01, chosen with the quality harness and the demo:
+    /// `docs/quality.md`, *Spatial splits*). Must be in `[0, 1)`.
+    pub spatial_gain_threshold: f32,
     /// Which directional cells split at refine (default [`Refinement::VarianceGain`], chosen
     /// with the quality harness: see `docs/quality.md`).
     pub refinement: Refinement,
@@ -136,6 +145,8 @@ impl Default for GuidingConfig {
         Self {
             rule: LeafRule::L2,
             spatial_threshold: 12000.0,
+            spatial_split: SpatialSplit::Count,
+            spatial_gain_threshold: 0.01,
             refinement: Refinement::VarianceGain,
             subdivision_threshold: 0.01,
             gain_threshold: 0.0007,
@@ -178,6 +189,12 @@ impl GuidingConfig {
             "spatial_threshold",
             self.spatial_threshold.to_string(),
             "a finite number >= 1",
+        )?;
+        check(
+            (0.0..1.0).contains(&self.spatial_gain_threshold),
+            "spatial_gain_threshold",
+            self.spatial_gain_threshold.to_string(),
+            "a number in [0, 1)",
         )?;
         check(
             self.subdivision_threshold > 0.0 && self.subdivision_threshold < 1.0,

@@ -16,6 +16,7 @@ use crate::region::{Guide, RefineOutcome, Region, StepParams};
 use crate::rule::{LeafRule, mixture_value};
 use crate::sample::{RejectReason, Sample};
 use crate::spatial::SpatialTree;
+use crate::spatial_split::{self, SpatialSplit, SplitPlan};
 use crate::sphere::INV_SPHERE_AREA;
 use crate::splitting::{Continuation, ContinuationEstimate};
 use crate::stats::{EventCount, FieldStats, RejectCounters, Rejections};
@@ -95,6 +96,7 @@ impl GuidingField {
         }
         let mut root = Region::default();
         root.set_volume(config.volumes.then(Guide::default));
+        root.set_signature(config.spatial_split == SpatialSplit::Gain);
         let mut field = Self {
             bounds,
             config,
@@ -201,6 +203,9 @@ impl GuidingField {
         if clamped || w.0.max(w.1) > MAX_TERM {
             self.clamped.count();
         }
+        if self.config.spatial_split == SpatialSplit::Gain {
+            self.record_signature(p, square, w.1);
+        }
         match self.config.spatial_filter {
             SpatialFilter::Nearest => self.insert_directional(home, volume, square, w, true),
             SpatialFilter::Stochastic => {
@@ -233,6 +238,18 @@ impl GuidingField {
             }
         }
         Ok(())
+    }
+
+    /// Records a sample's second-moment weight `w2` at `square` into the split signature of
+    /// the leaf at `p` (see [`crate::spatial_split`]). Out of line, with a lookup of its own
+    /// (the one that knows the leaf's depth): it costs only fields that split by gain.
+    #[inline(never)]
+    fn record_signature(&self, p: Vec3, square: Vec2, w2: f64) {
+        let leaf = self.spatial.locate(p);
+        let (cell, group) = self
+            .spatial
+            .cell_below(p, leaf.depth, spatial_split::LEVELS);
+        self.regions[leaf.leaf].record_signature(cell, group, square, w2);
     }
 
     /// Records weights `w` at `square` into spatial leaf `leaf`'s surface (or medium,
@@ -342,18 +359,25 @@ impl GuidingField {
         } else {
             (regions, 0)
         };
-        let fixed =
-            self.spatial.bytes() as u64 + regions * (Region::fixed_bytes(deferred) + volume_bytes);
+        let signature_bytes = if c.spatial_split == SpatialSplit::Gain {
+            spatial_split::SIGNATURE_BYTES
+        } else {
+            0
+        };
+        let fixed = self.spatial.bytes() as u64
+            + regions * (Region::fixed_bytes(deferred) + volume_bytes + signature_bytes);
         let per_tree =
             c.max_memory_bytes.saturating_sub(fixed) / (trees * bytes_per_node(deferred));
-        let params = StepParams::new(c, c.max_directional_nodes.min(per_tree.max(1) as u32));
+        let max_nodes = c.max_directional_nodes.min(per_tree.max(1) as u32);
+        let params = StepParams::new(c, self.iteration, max_nodes);
         let outcomes: Vec<RefineOutcome> = self
             .regions
             .par_iter_mut()
             .map(|r| r.refine(&params))
             .collect();
-        let counts: Vec<u64> = outcomes.iter().map(|o| o.samples).collect();
-        let recorded = counts.iter().fold(0u64, |a, &b| a.saturating_add(b));
+        let recorded = outcomes
+            .iter()
+            .fold(0u64, |a, o| a.saturating_add(o.samples));
         self.recorded_before = self.recorded_before.saturating_add(recorded);
         self.rejected_before = self.rejected_before.plus(&self.rejected.take());
         self.clamped.end_iteration();
@@ -361,13 +385,20 @@ impl GuidingField {
         self.fit_surface_products();
 
         let c = &self.config;
-        let threshold = f64::from(c.spatial_threshold) * 2f64.powf(0.5 * f64::from(self.iteration));
+        let threshold = params.spatial_threshold;
+        let plans: Vec<SplitPlan> = outcomes
+            .iter()
+            .map(|o| {
+                o.plan
+                    .unwrap_or_else(|| SplitPlan::by_count(o.samples, threshold))
+            })
+            .collect();
         let budget = c.max_memory_bytes;
         let mut bytes = self.bytes();
         let regions = &mut self.regions;
         self.spatial_refused +=
             self.spatial
-                .split(&counts, threshold, c.max_spatial_nodes as usize, |leaf| {
+                .split(&plans, threshold, c.max_spatial_nodes as usize, |leaf| {
                     let cost = (regions[leaf].bytes() + 2 * size_of::<u32>()) as u64;
                     if bytes + cost > budget {
                         return None;

@@ -17,6 +17,7 @@
 //!   refine   between iterations, &mut self        (deferred box filter: pending quadrant sums ─► moments)
 //!                                                  moments (l2: own second moment blended in) ─► shrinkage ─► rule masses ─► sampling tree
 //!                                                  quadrant sums ─► split gains ─► new topology
+//!                                                  counts (or split signatures) ─► spatial splits
 //!                                                  guide probability ─► one Newton step
 //!                                                  tallied normals ─► stored products with the cosine
 //!   query    render threads, &self, lock-free     distribution(x) ─► sample(u) / pdf(ω) / guide_probability()
@@ -77,7 +78,8 @@
 //!   [`MixtureTerms`], [`GuidingConfig`] (validated: [`ConfigError`]).
 //! - `field`: [`GuidingField`], which routes samples, continuations and queries to the
 //!   spatial leaf that holds their position (`spatial`, the binary tree over the scene's
-//!   bounding cube; `filter`, [`SpatialFilter`] and [`DirectionalFilter`]).
+//!   bounding cube; `spatial_split`, [`SpatialSplit`]: which spatial leaves split, by count or
+//!   by what the split gains; `filter`, [`SpatialFilter`] and [`DirectionalFilter`]).
 //! - `region`: one spatial leaf's state — its directional quadtree, its tally of normals and
 //!   their stored products, its guide probability, its continuation sums — and its part in
 //!   record, refine and merge.
@@ -133,6 +135,7 @@ mod region;
 mod rule;
 mod sample;
 mod spatial;
+mod spatial_split;
 pub mod sphere;
 mod splitting;
 mod stats;
@@ -162,11 +165,25 @@ pub use quadtree::DirectionalCell;
 pub use refinement::Refinement;
 pub use rule::LeafRule;
 pub use sample::{MixtureTerms, RejectReason, Sample};
+pub use spatial_split::SpatialSplit;
 pub use splitting::{
     Continuation, ContinuationEstimate, MIN_CONTINUATIONS, Splitting, SplittingMode, continuations,
 };
 pub use stats::{FieldStats, Rejections};
 pub use techniques::{MIN_TECHNIQUE_SAMPLES, TechniqueError, TechniqueProbabilities};
+
+/// Uniform `f32`s in `[0, 1)` from a 64-bit LCG seeded with `seed`: the unit tests' random
+/// stream (the `lab` crate's is for the integration tests, which depend on it).
+#[cfg(test)]
+pub(crate) fn test_uniforms(seed: u64) -> impl FnMut() -> f32 {
+    let mut state = seed;
+    move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -11,6 +11,7 @@
 
 use crate::bounds::Aabb;
 use crate::filter::overlap;
+use crate::spatial_split::{self, SplitPlan};
 use glam::Vec3;
 use std::collections::BinaryHeap;
 
@@ -243,25 +244,28 @@ impl SpatialTree {
             .collect()
     }
 
-    /// Splits busy leaves: a leaf with `count > threshold` samples splits in two, each child
-    /// taking half the count and splitting again while that still exceeds the threshold. The
-    /// busiest leaves go first; a split is refused when the tree would pass `max_nodes` or when
-    /// `new_leaf(parent)` (which creates the right child's directional tree) returns `None`.
-    /// The left child keeps the parent's directional tree. Returns the number of refusals.
+    /// Splits leaves by their plans (`plans[leaf]`, see [`SplitPlan`]): under the count rule a
+    /// leaf with more than `threshold` samples splits in two, each child taking half the count
+    /// and splitting again while that still exceeds the threshold; a plan by gain decides its
+    /// first levels itself. The busiest cells go first; a split is refused when the tree would
+    /// pass `max_nodes` or when `new_leaf(parent)` (which creates the right child's directional
+    /// tree) returns `None`. The left child keeps the parent's directional tree. Returns the
+    /// number of refusals.
     pub(crate) fn split(
         &mut self,
-        counts: &[u64],
+        plans: &[SplitPlan],
         threshold: f64,
         max_nodes: usize,
         mut new_leaf: impl FnMut(usize) -> Option<usize>,
     ) -> u64 {
-        let mut heap: BinaryHeap<(u64, usize, u32)> = self
+        // (count, node, depth, the leaf's plan, the cell's slot in it)
+        let mut heap: BinaryHeap<(u64, usize, u32, usize, usize)> = self
             .leaf_nodes()
-            .map(|(node, leaf, depth)| (counts[leaf], node, depth))
-            .filter(|&(count, _, _)| count as f64 > threshold)
+            .map(|(node, leaf, depth)| (plans[leaf].counts[1], node, depth, leaf, 1))
+            .filter(|&(count, _, _, leaf, slot)| plans[leaf].splits(slot, count, threshold))
             .collect();
         let mut refused = 0;
-        while let Some((count, node, depth)) = heap.pop() {
+        while let Some((count, node, depth, plan, slot)) = heap.pop() {
             let leaf = (self.nodes[node] & !LEAF_BIT) as usize;
             let room = self.nodes.len() + 2 <= max_nodes && depth < MAX_SPATIAL_DEPTH;
             let right = if room { new_leaf(leaf) } else { None };
@@ -273,14 +277,35 @@ impl SpatialTree {
             self.nodes.push(LEAF_BIT | leaf as u32);
             self.nodes.push(LEAF_BIT | right as u32);
             self.nodes[node] = first;
-            let half = count / 2;
-            if half as f64 > threshold {
-                heap.push((half, first as usize, depth + 1));
-                heap.push((count - half, first as usize + 1, depth + 1));
+            let (low, high) = plans[plan].children(slot, count);
+            for (i, count) in [low, high].into_iter().enumerate() {
+                let child = (2 * slot + i).min(spatial_split::SLOTS);
+                if plans[plan].splits(child, count, threshold) {
+                    heap.push((count, first as usize + i, depth + 1, plan, child));
+                }
             }
         }
         self.build_grid();
         refused
+    }
+
+    /// The cell of `p` among the `2^levels` cells of the `levels` levels below a leaf at depth
+    /// `depth` (the low half first, level by level: slot order), and a bit of `p` far below
+    /// any cell (the parity of its fixed-point coordinates' lowest bits).
+    #[inline]
+    pub(crate) fn cell_below(&self, p: Vec3, depth: u32, levels: u32) -> (usize, bool) {
+        let c = self.fixed(p);
+        let mut cell = 0;
+        for d in depth..depth + levels {
+            let level = d / 3;
+            let bit = if level < FIXED_BITS {
+                (c[(d % 3) as usize] >> (FIXED_BITS - 1 - level)) & 1
+            } else {
+                0
+            };
+            cell = 2 * cell + bit as usize;
+        }
+        (cell, (c[0] ^ c[1] ^ c[2]) & 1 == 1)
     }
 
     /// Every leaf with its box and depth.
@@ -341,12 +366,20 @@ fn halves(bounds: Aabb, depth: u32) -> (Aabb, Aabb) {
 mod tests {
     use super::*;
 
+    /// The count rule's plans for leaves of these counts.
+    fn by_count(counts: &[u64], threshold: f64) -> Vec<SplitPlan> {
+        counts
+            .iter()
+            .map(|&n| SplitPlan::by_count(n, threshold))
+            .collect()
+    }
+
     #[test]
     fn split_cycles_axes_and_descends_to_the_right_leaf() {
         let mut t = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
         let mut next = 1;
         // One leaf with 8 samples, threshold 1.5: splits until each leaf holds at most 1.
-        let refused = t.split(&[8], 1.5, usize::MAX, |_| {
+        let refused = t.split(&by_count(&[8], 1.5), 1.5, usize::MAX, |_| {
             next += 1;
             Some(next - 1)
         });
@@ -366,25 +399,20 @@ mod tests {
         let mut next = 1;
         // Uneven counts: some leaves stop above the grid's depth, some go far below it.
         let counts: Vec<u64> = (0..1).map(|_| 1 << 20).collect();
-        t.split(&counts, 1000.0, usize::MAX, |_| {
+        t.split(&by_count(&counts, 1000.0), 1000.0, usize::MAX, |_| {
             next += 1;
             Some(next - 1)
         });
         let counts: Vec<u64> = (0..next)
             .map(|i| if i % 3 == 0 { 1 << 14 } else { 0 })
             .collect();
-        t.split(&counts, 100.0, usize::MAX, |_| {
+        t.split(&by_count(&counts, 100.0), 100.0, usize::MAX, |_| {
             next += 1;
             Some(next - 1)
         });
-        let mut state = 7u64;
+        let mut u = crate::test_uniforms(7);
         for _ in 0..100_000 {
-            let mut r = || {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (state >> 40) as f32 / (1u64 << 24) as f32 * 5.0 - 2.0
-            };
+            let mut r = || u() * 5.0 - 2.0;
             let p = Vec3::new(r(), r(), r());
             let full = t.descend(t.fixed(p), t.nodes[0], FIXED_BITS - 1);
             assert_eq!(t.leaf_at(p), full);
@@ -408,11 +436,37 @@ mod tests {
     fn node_cap_refuses_splits() {
         let mut t = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
         let mut next = 1;
-        let refused = t.split(&[1000], 1.0, 3, |_| {
+        let refused = t.split(&by_count(&[1000], 1.0), 1.0, 3, |_| {
             next += 1;
             Some(next - 1)
         });
         assert_eq!(t.node_count(), 3);
         assert_eq!(refused, 2);
+    }
+
+    #[test]
+    fn a_cell_below_a_leaf_is_the_leaf_its_split_would_give() {
+        let mut t = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
+        let mut next = 1;
+        t.split(&by_count(&[64], 1.0), 1.0, usize::MAX, |_| {
+            next += 1;
+            Some(next - 1)
+        });
+        let mut r = crate::test_uniforms(3);
+        let root = SpatialTree::new(Aabb::new(Vec3::ZERO, Vec3::ONE));
+        for _ in 0..10_000 {
+            let p = Vec3::new(r(), r(), r());
+            // The six-level tree's leaf at p, as the root's cells two levels below and the
+            // depth-3 leaf's cells three levels below say.
+            let leaf = t.locate(p);
+            assert_eq!(leaf.depth, 6);
+            let (top, _) = root.cell_below(p, 0, 3);
+            let (bottom, _) = root.cell_below(p, 3, 3);
+            let (all, _) = root.cell_below(p, 0, 6);
+            assert_eq!(all, top * 8 + bottom);
+            let lo = leaf.bounds.min;
+            let (again, _) = root.cell_below(lo + Vec3::splat(1e-4), 0, 6);
+            assert_eq!(all, again);
+        }
     }
 }

@@ -381,13 +381,7 @@ mod tests {
 
     #[test]
     fn round_trip_error_is_within_the_bound() {
-        let mut state = 1u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut next = crate::test_uniforms(1);
         let random = (0..2_000_000).map(|_| Vec2::new(next(), next()));
         // Near the border, the centre (+z), the axes and the equator's diamond, where the
         // map's pieces meet and where ulps are largest.

@@ -6,7 +6,7 @@ use glam::Vec3;
 use sdguide::MAX_GUIDE_PROBABILITY;
 use sdguide::{
     CacheError, Continuation, ContinuationEstimate, DirectionalFilter, GuidingConfig, GuidingField,
-    MergeError, Refinement, Sample,
+    MergeError, Refinement, Sample, SpatialSplit,
 };
 use sdguide_lab::rng::Rng;
 
@@ -204,14 +204,14 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     let field = small_field();
     let bytes = field.to_bytes();
     assert_eq!(
-        assemble((3, 2), &parts(&bytes)),
+        assemble((3, 3), &parts(&bytes)),
         bytes,
         "the test's writer matches the library's"
     );
     // Without the continuations (an optional section): it loads, with no continuation
     // estimates and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 6).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 2), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 3), &without)).unwrap();
     assert_eq!(older.stats().continuations_recorded, 0);
     assert!(
         older
@@ -222,7 +222,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     // Without the surface tallies: it loads, with no stored products (queries take the
     // per-query product), and everything else as saved.
     let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 7).collect();
-    let older = GuidingField::from_bytes(&assemble((3, 2), &without)).unwrap();
+    let older = GuidingField::from_bytes(&assemble((3, 3), &without)).unwrap();
     assert!(field.stats().surface_products > 0);
     assert_eq!(older.stats().surface_products, 0);
     for (a, b) in field.cells().zip(older.cells()) {
@@ -246,7 +246,7 @@ fn newer_minor_versions_load_and_newer_majors_do_not() {
     ));
     match GuidingField::from_bytes(&assemble((4, 0), &parts(&bytes))) {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((4, 0), (3, 2)));
+            assert_eq!((found, supported), ((4, 0), (3, 3)));
         }
         other => panic!("{other:?}"),
     }
@@ -261,7 +261,7 @@ fn forge(bytes: &[u8], kind: u32, at: usize, value: [u8; 4]) -> Result<GuidingFi
     let mut p = parts(bytes);
     let body = &mut p.iter_mut().find(|s| s.0 == kind).unwrap().2;
     body[at..at + 4].copy_from_slice(&value);
-    GuidingField::from_bytes(&assemble((3, 2), &p))
+    GuidingField::from_bytes(&assemble((3, 3), &p))
 }
 
 #[test]
@@ -307,7 +307,7 @@ fn forged_files_with_valid_checksums_are_still_refused() {
     body[4 + 16..4 + 56].fill(0);
     body[4 + 24..4 + 28].copy_from_slice(&3.0f32.to_le_bytes());
     corrupt(
-        GuidingField::from_bytes(&assemble((3, 2), &p)),
+        GuidingField::from_bytes(&assemble((3, 3), &p)),
         "surfaces",
         "normal",
     );
@@ -467,7 +467,7 @@ fn a_version_one_file_is_refused_with_a_typed_error() {
     // 2.x reader refuses the file, with the versions in the error.
     match GuidingField::load_from_path("tests/data/v1.sdgc") {
         Err(CacheError::UnsupportedVersion { found, supported }) => {
-            assert_eq!((found, supported), ((1, 0), (3, 2)));
+            assert_eq!((found, supported), ((1, 0), (3, 3)));
         }
         other => panic!("{other:?}"),
     }
@@ -799,15 +799,15 @@ fn merging_fields_that_did_not_start_together_is_refused_untouched() {
 
 #[test]
 fn a_three_zero_file_loads_as_a_field_without_volumes() {
-    // 3.0 is 3.2 without the META's last 32 bytes (flags, the medium samples' rejection
-    // counters, `filter_samples`) and without volume sections; its masses were the filtered
-    // sums alone.
+    // 3.0 is 3.3 without the META's last 40 bytes (flags, the medium samples' rejection
+    // counters, `filter_samples`, the spatial split rule) and without volume sections; its
+    // masses were the filtered sums alone.
     let field = small_field();
     let bytes = field.to_bytes();
     let mut older = parts(&bytes);
     assert!(older.iter().all(|p| p.0 < 10));
     let meta = &mut older[0].2;
-    meta.truncate(meta.len() - 32);
+    meta.truncate(meta.len() - 40);
     let loaded = GuidingField::from_bytes(&assemble((3, 0), &older)).unwrap();
     assert!(!loaded.config().volumes);
     assert_same(&field, &loaded);
@@ -820,7 +820,7 @@ fn blended(field: GuidingField) -> GuidingField {
     let mut p = parts(&field.to_bytes());
     assert_eq!(p[0].2[240..244], (-1.0f32).to_le_bytes());
     p[0].2[240..244].copy_from_slice(&128.0f32.to_le_bytes());
-    GuidingField::from_bytes(&assemble((3, 2), &p)).unwrap()
+    GuidingField::from_bytes(&assemble((3, 3), &p)).unwrap()
 }
 
 #[test]
@@ -829,11 +829,11 @@ fn a_three_one_file_keeps_its_filtered_masses_and_a_three_two_file_its_blend() {
     assert_eq!(field.config().filter_samples, Some(128.0));
     let bytes = field.to_bytes();
     assert_same(&field, &GuidingField::from_bytes(&bytes).unwrap());
-    // 3.1: META without its last 8 bytes. It loads with `None`, and the next refine computes
+    // 3.1: META without its last 16 bytes. It loads with `None`, and the next refine computes
     // its masses from the filtered sums, as a 3.1 library did: it differs from the blend.
     let mut older = parts(&bytes);
     let meta = &mut older[0].2;
-    meta.truncate(meta.len() - 8);
+    meta.truncate(meta.len() - 16);
     let mut old = GuidingField::from_bytes(&assemble((3, 1), &older)).unwrap();
     assert_eq!(old.config().filter_samples, None);
     let mut expected = small_field();
@@ -853,9 +853,58 @@ fn a_three_one_file_keeps_its_filtered_masses_and_a_three_two_file_its_blend() {
         let mut p = parts(&bytes);
         p[0].2[240..244].copy_from_slice(&value.to_le_bytes());
         assert_eq!(
-            GuidingField::from_bytes(&assemble((3, 2), &p)).is_ok(),
+            GuidingField::from_bytes(&assemble((3, 3), &p)).is_ok(),
             ok,
             "{value}"
         );
     }
+}
+
+#[test]
+fn a_field_split_by_gain_keeps_its_signatures_and_a_three_two_file_splits_by_count() {
+    let config = GuidingConfig {
+        spatial_threshold: 400.0,
+        spatial_split: SpatialSplit::Gain,
+        spatial_gain_threshold: 0.02,
+        ..GuidingConfig::default()
+    };
+    let mut field = GuidingField::new(room_bounds(), config).unwrap();
+    workload().train(&mut field, 1, 8_000);
+    workload().record_iteration(&field, 1, 16_000);
+    let bytes = field.to_bytes();
+    let mut loaded = GuidingField::from_bytes(&bytes).unwrap();
+    assert_same(&field, &loaded);
+    assert_eq!(loaded.to_bytes(), bytes);
+    // The signatures travel: the refine after loading splits as the one without.
+    field.refine();
+    loaded.refine();
+    assert_eq!(loaded.to_bytes(), field.to_bytes());
+    // Without the signatures section the iteration's signatures start at zero: nothing
+    // splits by gain.
+    let before = GuidingField::from_bytes(&bytes)
+        .unwrap()
+        .stats()
+        .spatial_leaves;
+    let without: Vec<_> = parts(&bytes).into_iter().filter(|p| p.0 != 15).collect();
+    let mut blind = GuidingField::from_bytes(&assemble((3, 3), &without)).unwrap();
+    blind.refine();
+    assert_eq!(blind.stats().spatial_leaves, before);
+    assert!(field.stats().spatial_leaves > before);
+    // 3.2: META without its last 8 bytes: split by count.
+    let mut older = parts(&bytes);
+    older.retain(|p| p.0 != 15);
+    let meta = &mut older[0].2;
+    meta.truncate(meta.len() - 8);
+    let old = GuidingField::from_bytes(&assemble((3, 2), &older)).unwrap();
+    assert_eq!(old.config().spatial_split, SpatialSplit::Count);
+    // An unknown rule is refused.
+    let mut p = parts(&bytes);
+    p[0].2[248] = 7;
+    assert!(matches!(
+        GuidingField::from_bytes(&assemble((3, 3), &p)),
+        Err(CacheError::Corrupt {
+            section: "meta",
+            ..
+        })
+    ));
 }

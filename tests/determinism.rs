@@ -9,14 +9,15 @@
 use glam::Vec3;
 use sdguide::{
     Continuation, DirectionalFilter, GuidingConfig, GuidingField, Sample, SpatialFilter,
+    SpatialSplit,
 };
 use sdguide_lab::rng::Rng;
 use sdguide_lab::synthetic::{Bsdf, LightField, Workload, room_bounds};
 use std::process::Command;
 
 /// The configurations under test: the default, and one with the stochastic spatial filter
-/// (its jitter comes from the sample) and the deferred directional filter (its pending sums
-/// travel through caches and merges).
+/// (its jitter comes from the sample), the deferred directional filter (its pending sums
+/// travel through caches and merges) and spatial splits by gain (their signatures too).
 fn configs() -> [GuidingConfig; 2] {
     let base = GuidingConfig {
         spatial_threshold: 2_000.0,
@@ -28,6 +29,7 @@ fn configs() -> [GuidingConfig; 2] {
         GuidingConfig {
             spatial_filter: SpatialFilter::Stochastic,
             directional_filter: DirectionalFilter::DeferredBox,
+            spatial_split: SpatialSplit::Gain,
             ..base
         },
     ]

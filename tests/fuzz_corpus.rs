@@ -107,6 +107,7 @@ fn write_seed_corpus() {
         }
     }
     std::fs::write(dir.join("cache_load/volumes-3.1"), volumes.to_bytes()).unwrap();
+    std::fs::write(dir.join("cache_load/gain-3.3"), gain_cache()).unwrap();
 
     // field_ops: a training session, bad inputs, and an absurd configuration.
     let config = |c: f32, rho: f32, depth: u8, eps: f32, nodes: u16, spatial: u16, mem: u8| {
@@ -243,4 +244,39 @@ fn write_seed_corpus() {
     }
     absurd.extend_from_slice(&[4, 5]);
     std::fs::write(dir.join("field_ops/absurd-config"), absurd).unwrap();
+}
+
+/// A small 3.3 cache of a field that splits spatial leaves by gain, in the middle of an
+/// iteration: its signatures hold sums.
+fn gain_cache() -> Vec<u8> {
+    use sdguide::{GuidingConfig, GuidingField, SpatialSplit};
+    let mut field = GuidingField::new(
+        sdguide_lab::synthetic::room_bounds(),
+        GuidingConfig {
+            spatial_threshold: 300.0,
+            max_directional_nodes: 24,
+            spatial_split: SpatialSplit::Gain,
+            spatial_gain_threshold: 0.01,
+            ..GuidingConfig::default()
+        },
+    )
+    .unwrap();
+    let work = sdguide_lab::synthetic::Workload {
+        light: sdguide_lab::synthetic::LightField::standard(),
+        lobe_noise: 1.0,
+        seed: 2,
+        bsdf: None,
+    };
+    work.train(&mut field, 2, 1_000);
+    work.record_iteration(&field, 5, 300);
+    field.to_bytes()
+}
+
+/// The corpus's gain cache (written by [`gain_cache`]) is a field split by gain that loads.
+#[test]
+fn the_corpus_holds_a_field_split_by_gain() {
+    let bytes = std::fs::read("fuzz/corpus/cache_load/gain-3.3").unwrap();
+    let field = sdguide::GuidingField::from_bytes(&bytes).unwrap();
+    assert_eq!(field.config().spatial_split, sdguide::SpatialSplit::Gain);
+    assert!(field.stats().spatial_leaves > 1);
 }

@@ -2,13 +2,15 @@
 
 use glam::{Vec2, Vec3};
 use sdguide::sphere::{INV_SPHERE_AREA, square_to_direction};
-use sdguide::{Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample};
+use sdguide::{
+    Aabb, DirectionalFilter, GuidingConfig, GuidingField, LeafRule, Refinement, Sample,
+    SpatialSplit,
+};
 
 fn unit_box() -> Aabb {
     Aabb::new(Vec3::ZERO, Vec3::ONE)
 }
 
-/// The centre of quadrant `q` (`q = ix + 2·iy`) of the square, as a direction.
 /// A sample of value 1 from +z at `position`, drawn with pdf 1.
 fn unit_sample(position: Vec3) -> Sample {
     Sample {
@@ -20,6 +22,7 @@ fn unit_sample(position: Vec3) -> Sample {
     }
 }
 
+/// The centre of quadrant `q` (`q = ix + 2·iy`) of the square, as a direction.
 fn quadrant_direction(q: usize) -> Vec3 {
     square_to_direction(Vec2::new(
         0.25 + 0.5 * (q & 1) as f32,
@@ -519,4 +522,65 @@ fn the_masses_shrinkage_does_not_move_the_variance_gain_splits() {
             .fold(0.0, f32::max);
         assert!(moved > 1e-3, "n0 = {n0} left the masses as they were");
     }
+}
+
+/// `n` samples at positions and directions spread over the unit box and the sphere (a
+/// low-discrepancy sequence), drawn uniformly, with the value `light(position, direction)`.
+fn spread_samples(n: u32, light: impl Fn(Vec3, Vec3) -> f32) -> Vec<Sample> {
+    let frac = |i: u32, a: f64| ((f64::from(i) * a).fract()) as f32;
+    (0..n)
+        .map(|i| {
+            let position = Vec3::new(
+                frac(i, 0.7548776662),
+                frac(i, 0.5698402910),
+                frac(i, 0.4301597090),
+            );
+            let u = Vec2::new(frac(i, 0.3176721961), frac(i, 0.8823278039));
+            let direction = square_to_direction(u);
+            Sample {
+                position,
+                direction,
+                value: light(position, direction),
+                pdf: INV_SPHERE_AREA,
+                ..Sample::default()
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn by_gain_a_leaf_splits_where_the_light_changes_and_not_where_samples_pile_up() {
+    let config = GuidingConfig {
+        spatial_threshold: 2_000.0,
+        spatial_split: SpatialSplit::Gain,
+        ..GuidingConfig::default()
+    };
+    let leaves = |light: &dyn Fn(Vec3, Vec3) -> f32| {
+        let mut field = GuidingField::new(unit_box(), config.clone()).unwrap();
+        field.record_all(&spread_samples(200_000, light));
+        field.refine();
+        field.cells().map(|c| c.bounds).collect::<Vec<_>>()
+    };
+    // The same light everywhere: 100 times the count rule's threshold, and no split.
+    assert_eq!(leaves(&|_, d| 1.0 + d.z).len(), 1);
+    // Light from above for x < ½ and from below beyond: the first split, at x = ½, splits the
+    // light; splits beyond it (y, z) gain nothing.
+    let split = leaves(&|p, d| {
+        if (p.x < 0.5) == (d.z > 0.0) {
+            1.0
+        } else {
+            0.01
+        }
+    });
+    assert_eq!(split.len(), 2, "{split:?}");
+    assert!(split.iter().all(|b| (b.max.x - b.min.x - 0.5).abs() < 1e-6));
+    // The count rule splits both, by their count.
+    let count = GuidingConfig {
+        spatial_split: SpatialSplit::Count,
+        ..config
+    };
+    let mut field = GuidingField::new(unit_box(), count).unwrap();
+    field.record_all(&spread_samples(200_000, |_, d| 1.0 + d.z));
+    field.refine();
+    assert!(field.stats().spatial_leaves > 50);
 }

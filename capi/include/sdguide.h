@@ -56,6 +56,17 @@
 #define SDG_REFINEMENT_VARIANCE_GAIN 1
 
 /*
+ Spatial splits: a leaf splits past `c·sqrt(2^k)` samples in iteration `k` (the default).
+ */
+#define SDG_SPATIAL_SPLIT_COUNT 0
+
+/*
+ Spatial splits: a leaf splits where its halves see different light
+ (`spatial_gain_threshold`).
+ */
+#define SDG_SPATIAL_SPLIT_GAIN 1
+
+/*
  In `sdg_config::flags`: `guide_cost` is set (without it, the guide never turns off).
  */
 #define SDG_CONFIG_GUIDE_COST 1
@@ -267,6 +278,15 @@ typedef struct {
    masses use the filtered sums alone.
    */
   float filter_samples;
+  /*
+   `SDG_SPATIAL_SPLIT_COUNT` or `SDG_SPATIAL_SPLIT_GAIN`.
+   */
+  uint32_t spatial_split;
+  /*
+   `τ` of `SDG_SPATIAL_SPLIT_GAIN`: a spatial cell splits when its split lowers the
+   estimator's second moment by more than `τ` of it beyond what noise gains; in [0, 1).
+   */
+  float spatial_gain_threshold;
 } sdg_config;
 
 /*

@@ -2,7 +2,9 @@
 //! way between it and the Rust `GuidingConfig`.
 
 use crate::error::{Failure, fail, guard, put, sdg_status};
-use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement, SpatialFilter};
+use sdguide::{
+    DirectionalFilter, GuidingConfig, LeafRule, Refinement, SpatialFilter, SpatialSplit,
+};
 
 /// Leaf rule `L1`: mass proportional to the mean.
 pub const SDG_RULE_L1: u32 = 0;
@@ -27,6 +29,12 @@ pub const SDG_REFINEMENT_FLUX_SHARE: u32 = 0;
 /// Refinement: split directional cells by the variance the split removes (`gain_threshold`;
 /// the default).
 pub const SDG_REFINEMENT_VARIANCE_GAIN: u32 = 1;
+
+/// Spatial splits: a leaf splits past `c·sqrt(2^k)` samples in iteration `k` (the default).
+pub const SDG_SPATIAL_SPLIT_COUNT: u32 = 0;
+/// Spatial splits: a leaf splits where its halves see different light
+/// (`spatial_gain_threshold`).
+pub const SDG_SPATIAL_SPLIT_GAIN: u32 = 1;
 
 /// The field's configuration; `sdg_config_default` fills in the defaults. Fields mean what the
 /// same-named fields of the Rust `GuidingConfig` mean.
@@ -75,6 +83,11 @@ pub struct sdg_config {
     /// `SDG_CONFIG_FILTER_SAMPLES` in `flags` (set by `sdg_config_default`); without it the
     /// masses use the filtered sums alone.
     pub filter_samples: f32,
+    /// `SDG_SPATIAL_SPLIT_COUNT` or `SDG_SPATIAL_SPLIT_GAIN`.
+    pub spatial_split: u32,
+    /// `τ` of `SDG_SPATIAL_SPLIT_GAIN`: a spatial cell splits when its split lowers the
+    /// estimator's second moment by more than `τ` of it beyond what noise gains; in [0, 1).
+    pub spatial_gain_threshold: f32,
 }
 
 /// In `sdg_config::flags`: `guide_cost` is set (without it, the guide never turns off).
@@ -144,6 +157,14 @@ const DIRECTIONAL_FILTERS: Codes<DirectionalFilter> = Codes {
     ],
 };
 
+const SPATIAL_SPLITS: Codes<SpatialSplit> = Codes {
+    what: "spatial split",
+    table: &[
+        (SDG_SPATIAL_SPLIT_COUNT, SpatialSplit::Count),
+        (SDG_SPATIAL_SPLIT_GAIN, SpatialSplit::Gain),
+    ],
+};
+
 const REFINEMENTS: Codes<Refinement> = Codes {
     what: "refinement",
     table: &[
@@ -168,6 +189,7 @@ macro_rules! with_plain_fields {
             prior_samples: $src.prior_samples,
             gain_threshold: $src.gain_threshold,
             max_guide_probability: $src.max_guide_probability,
+            spatial_gain_threshold: $src.spatial_gain_threshold,
             $($rest)*
         }
     };
@@ -186,6 +208,7 @@ impl sdg_config {
             spatial_filter: SPATIAL_FILTERS.code(c.spatial_filter)?,
             directional_filter: DIRECTIONAL_FILTERS.code(c.directional_filter)?,
             refinement: REFINEMENTS.code(c.refinement)?,
+            spatial_split: SPATIAL_SPLITS.code(c.spatial_split)?,
             guide_cost: c.guide_cost.unwrap_or(0.0),
             flags: flag(c.guide_cost.is_some(), SDG_CONFIG_GUIDE_COST)
                 | flag(c.volumes, SDG_CONFIG_VOLUMES)
@@ -203,6 +226,7 @@ impl sdg_config {
             spatial_filter: SPATIAL_FILTERS.value(c.spatial_filter)?,
             directional_filter: DIRECTIONAL_FILTERS.value(c.directional_filter)?,
             refinement: REFINEMENTS.value(c.refinement)?,
+            spatial_split: SPATIAL_SPLITS.value(c.spatial_split)?,
             guide_cost: (c.flags & SDG_CONFIG_GUIDE_COST != 0).then_some(c.guide_cost),
             volumes: c.flags & SDG_CONFIG_VOLUMES != 0,
             filter_samples: (c.flags & SDG_CONFIG_FILTER_SAMPLES != 0).then_some(c.filter_samples),

@@ -237,6 +237,26 @@ fn non_finite_inputs_are_rejected_or_refused() {
             sdg_field_destroy(out);
             out = null_mut();
         }
+        // Both spatial split rules make a field; an unknown one, or a gain threshold out of
+        // range, does not.
+        for (spatial_split, tau, status) in [
+            (SDG_SPATIAL_SPLIT_COUNT, 0.05, sdg_status::Ok),
+            (SDG_SPATIAL_SPLIT_GAIN, 0.0, sdg_status::Ok),
+            (2, 0.05, sdg_status::Config),
+            (SDG_SPATIAL_SPLIT_GAIN, 1.0, sdg_status::Config),
+        ] {
+            let c = sdg_config {
+                spatial_split,
+                spatial_gain_threshold: tau,
+                ..config()
+            };
+            assert_eq!(
+                sdg_field_create(&c, v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), &mut out),
+                status
+            );
+            sdg_field_destroy(out);
+            out = null_mut();
+        }
         // The deferred box is a directional filter only.
         let c = sdg_config {
             spatial_filter: SDG_FILTER_DEFERRED_BOX,

@@ -17,7 +17,7 @@ use sdguide::{Aabb, GuidingConfig, Sample};
 
 /// The spellings serde gives the config's enums; a keyword argument may use any case and
 /// `-`/`_` (`"l2-mixture"`, `"deferred_box"`).
-const VARIANTS: [&str; 9] = [
+const VARIANTS: [&str; 11] = [
     "L1",
     "L2",
     "L2Mixture",
@@ -27,6 +27,8 @@ const VARIANTS: [&str; 9] = [
     "Stochastic",
     "Box",
     "DeferredBox",
+    "Count",
+    "Gain",
 ];
 
 fn variant(text: &str) -> String {

@@ -194,6 +194,9 @@ def test_config_keywords():
     assert field.config["rule"] == "L2Mixture"
     assert field.config["directional_filter"] == "DeferredBox"
     assert field.config["filter_samples"] == 128
+    gain = sdguide.GuidingField(LOWER, UPPER, spatial_split="gain", spatial_gain_threshold=0.02)
+    assert gain.config["spatial_split"] == "Gain"
+    assert sdguide.GuidingField.from_bytes(gain.to_bytes()).config == gain.config
     assert field.bounds == ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0])
     for bad in (
         {"bogus": 1},

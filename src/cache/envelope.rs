@@ -54,6 +54,7 @@ pub(super) struct Sections<'a> {
     pub(super) volume: GuideSections<'a>,
     pub(super) continuations: Option<&'a [u8]>,
     pub(super) surfaces: Option<&'a [u8]>,
+    pub(super) signatures: Option<&'a [u8]>,
     /// The file's major version: 2.x files hold their sums as `f64`.
     pub(super) major: u16,
 }
@@ -116,6 +117,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
     let mut table = In::new(&bytes[HEADER_LEN..table_end], "sections");
     let (mut meta, mut spatial, mut directional) = (None, None, None);
     let (mut volume_directional, mut continuations, mut surfaces) = (None, None, None);
+    let mut signatures = None;
     let (mut surface, mut volume) = (GuideSections::default(), GuideSections::default());
     for _ in 0..section_count {
         let (kind, flags, offset, length) =
@@ -146,6 +148,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
             SECTION_VOLUME_QUADRANTS => &mut volume.quadrants,
             SECTION_VOLUME_GUIDE_COST => &mut volume.guide_cost,
             SECTION_VOLUME_PENDING => &mut volume.pending,
+            SECTION_SIGNATURES => &mut signatures,
             _ if flags & FLAG_REQUIRED != 0 => {
                 return Err(corrupt(
                     "sections",
@@ -171,6 +174,7 @@ pub(super) fn read_envelope(bytes: &[u8]) -> Result<Sections<'_>, CacheError> {
         volume,
         continuations,
         surfaces,
+        signatures,
         major: version.0,
     })
 }

@@ -407,3 +407,43 @@ pub(super) fn decode_pending(
     }
     Ok(())
 }
+
+pub(super) fn encode_signatures(trees: &[Region]) -> Vec<u8> {
+    let mut out = Out(Vec::with_capacity(4 + SIGNATURE_LEN * trees.len()));
+    out.u32(trees.len() as u32);
+    for t in trees {
+        let s = t.signature().unwrap_or_default();
+        for &c in &s.counts {
+            out.u64(c);
+        }
+        for &x in &s.sums {
+            out.sum(x);
+        }
+    }
+    out.0
+}
+
+/// Reads the optional signatures section into `trees` (already decoded, each with an empty
+/// signature).
+pub(super) fn decode_signatures(bytes: &[u8], trees: &mut [Region]) -> Result<(), CacheError> {
+    let section = "signatures";
+    let mut r = In::new(bytes, section);
+    let n = r.count(SIGNATURE_LEN, "split signatures")?;
+    if n != trees.len() {
+        return Err(corrupt(
+            section,
+            format!("{n} split signatures for {} trees", trees.len()),
+        ));
+    }
+    for t in trees.iter_mut() {
+        let mut s = SignatureSums::default();
+        for c in &mut s.counts {
+            *c = r.u64()?;
+        }
+        for x in &mut s.sums {
+            *x = r.sum()?;
+        }
+        t.set_signature_sums(&s);
+    }
+    Ok(())
+}

@@ -73,6 +73,13 @@ pub(super) fn encode_meta(field: &GuidingField) -> Vec<u8> {
     // Filtered second moments alone: a negative count.
     out.f32(c.filter_samples.unwrap_or(-1.0));
     out.u32(0);
+    debug_assert_eq!(out.0.len(), META_LEN_3_2);
+    out.u8(match c.spatial_split {
+        SpatialSplit::Count => 0,
+        SpatialSplit::Gain => 1,
+    });
+    out.0.extend_from_slice(&[0; 3]);
+    out.f32(c.spatial_gain_threshold);
     debug_assert_eq!(out.0.len(), META_LEN);
     out.0
 }
@@ -190,6 +197,16 @@ pub(super) fn decode_meta(bytes: &[u8]) -> Result<GuidingField, CacheError> {
         r.u32()?;
         unset_if_negative(n)
     };
+    // 3.3: the spatial split rule. An older file split by count, and keeps doing so.
+    if !r.bytes.is_empty() {
+        field.config.spatial_split = match r.u8()? {
+            0 => SpatialSplit::Count,
+            1 => SpatialSplit::Gain,
+            other => return Err(corrupt("meta", format!("unknown spatial split {other}"))),
+        };
+        r.take(3)?;
+        field.config.spatial_gain_threshold = r.f32()?;
+    }
     field.rejected_before = Rejections::from_array(counts[0]);
     field.rejected = RejectCounters::from_rejections(Rejections::from_array(counts[1]));
     field

@@ -26,6 +26,7 @@ use crate::refinement::Refinement;
 use crate::region::{Guide, GuideView, GuideViewMut, Region};
 use crate::rule::LeafRule;
 use crate::spatial::{self, MAX_SPATIAL_DEPTH, SpatialTree};
+use crate::spatial_split::{self, SignatureSums, SpatialSplit};
 use crate::splitting::{ContinuationEstimate, ContinuationStats, ContinuationSums};
 use crate::stats::{EventCount, REASONS, RejectCounters, Rejections};
 use glam::Vec3;
@@ -45,8 +46,8 @@ use bytes::{In, Out};
 use envelope::{read_envelope, write_envelope};
 use leaf_sums::{
     decode_continuations, decode_guide_cost, decode_pending, decode_quadrants, decode_selection,
-    decode_surfaces, encode_continuations, encode_guide_cost, encode_pending, encode_quadrants,
-    encode_selection, encode_surfaces,
+    decode_signatures, decode_surfaces, encode_continuations, encode_guide_cost, encode_pending,
+    encode_quadrants, encode_selection, encode_signatures, encode_surfaces,
 };
 use meta::{decode_meta, encode_meta};
 use trees::{decode_directional, decode_spatial, encode_directional, encode_spatial};
@@ -66,8 +67,10 @@ pub const FORMAT_MAJOR: u16 = 3;
 /// normal tally's buckets, the clamped-sample counters at the end of `META`, and the optional
 /// `PENDING` section (the deferred box filter's sums not yet spread). 3.1 adds volume guides:
 /// the `volumes` flag and the medium samples' rejection counters at the end of `META`, and the
-/// `VOLUME_*` sections (required where the field has volumes; a 3.0 file has none).
-pub const FORMAT_MINOR: u16 = 2;
+/// `VOLUME_*` sections (required where the field has volumes; a 3.0 file has none). 3.2 adds
+/// `filter_samples` to `META`; 3.3 the spatial split rule to `META` and the optional
+/// `SIGNATURES` section.
+pub const FORMAT_MINOR: u16 = 3;
 /// The oldest major a reader loads (converting its sums).
 const LEGACY_MAJOR: u16 = 2;
 
@@ -109,6 +112,11 @@ const SECTION_VOLUME_SELECTION: u32 = 11;
 const SECTION_VOLUME_QUADRANTS: u32 = 12;
 const SECTION_VOLUME_GUIDE_COST: u32 = 13;
 const SECTION_VOLUME_PENDING: u32 = 14;
+/// 3.3: each spatial leaf's split signature, in a field that splits spatial leaves by gain
+/// (optional: a reader without it starts the iteration's signatures at zero).
+const SECTION_SIGNATURES: u32 = 15;
+const SIGNATURE_LEN: usize =
+    8 * spatial_split::SIGNATURE_COUNTS + 16 * spatial_split::SIGNATURE_SUMS;
 /// Section flag: a reader that does not know the section's kind must refuse the file.
 const FLAG_REQUIRED: u32 = 1;
 /// Length of the `META` section in format 1.0 (readers need at least this much).
@@ -128,11 +136,14 @@ const REASONS_3_0: usize = 5;
 const META_LEN_3_0: usize = 216;
 /// Length of the `META` section in format 3.1.
 const META_LEN_3_1: usize = 240;
+/// Length of the `META` section in format 3.2.
+const META_LEN_3_2: usize = 248;
 /// Length of the `META` section this library writes (1.1 appends `prior_samples` and the
 /// filters, 1.2 the refinement criterion and its threshold, 2.4 the guide probability's bound,
 /// 2.6 the guide's cost, 3.0 the clamped-sample counters, 3.1 the flags (bit 0: volumes) and
-/// the counters of medium samples rejected for want of a volume guide, 3.2 `filter_samples`).
-const META_LEN: usize = 248;
+/// the counters of medium samples rejected for want of a volume guide, 3.2 `filter_samples`,
+/// 3.3 the spatial split rule and its threshold).
+const META_LEN: usize = 256;
 const SAMPLING_NODE_LEN: usize = 32;
 const RECORDING_NODE_LEN: usize = 16;
 const MOMENTS_LEN: usize = 24;
@@ -289,6 +300,9 @@ impl GuidingField {
             (SECTION_GUIDE_COST, 0, encode_guide_cost(&self.regions)),
             (SECTION_PENDING, 0, encode_pending(&self.regions)),
         ];
+        if self.config.spatial_split == SpatialSplit::Gain {
+            sections.push((SECTION_SIGNATURES, 0, encode_signatures(&self.regions)));
+        }
         if self.config.volumes {
             let volumes: Vec<&Guide> = self.regions.iter().filter_map(Region::volume).collect();
             sections.extend([
@@ -356,6 +370,13 @@ impl GuidingField {
         }
         if let Some(bytes) = sections.surfaces {
             decode_surfaces(bytes, &mut field.regions, major)?;
+        }
+        let gain = field.config.spatial_split == SpatialSplit::Gain;
+        for region in &mut field.regions {
+            region.set_signature(gain);
+        }
+        if let (true, Some(bytes)) = (gain, sections.signatures) {
+            decode_signatures(bytes, &mut field.regions)?;
         }
         let deferred = field.config.directional_filter.defers();
         decode_guide_sums(&sections.surface, &mut field.regions, major, deferred)?;

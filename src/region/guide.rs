@@ -141,6 +141,7 @@ pub(crate) fn step(
     let outcome = RefineOutcome {
         samples,
         refused: next.refused,
+        plan: None,
     };
     (outcome, true)
 }

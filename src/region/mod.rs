@@ -31,6 +31,7 @@ use crate::quadtree::{
     DirectionalCell, GRID_BYTES, RecordingTree, RefineParams, SamplingTree, Surfaces, Tallied,
     leaf_bytes,
 };
+use crate::spatial_split::{Bins, SignatureSums, SplitPlan, SplitSignature, count_threshold};
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
 use crate::stats::FieldStats;
 use glam::{Vec2, Vec3};
@@ -44,11 +45,16 @@ pub(crate) struct StepParams {
     pub max_guide_probability: f32,
     /// What sampling the guide costs, relative; `None`: the guide never turns off.
     pub guide_cost: Option<f32>,
+    /// The count rule's threshold for the iteration that ends (a floor for splits by gain).
+    pub spatial_threshold: f64,
+    /// `τ` of splits by gain.
+    pub spatial_gain_threshold: f64,
 }
 
 impl StepParams {
-    /// The parameters of `config`, with `max_nodes` interior nodes at most per tree.
-    pub(crate) fn new(config: &GuidingConfig, max_nodes: u32) -> Self {
+    /// The parameters of `config` at the end of iteration `iteration`, with `max_nodes`
+    /// interior nodes at most per tree.
+    pub(crate) fn new(config: &GuidingConfig, iteration: u32, max_nodes: u32) -> Self {
         Self {
             tree: RefineParams {
                 rule: config.rule,
@@ -64,6 +70,8 @@ impl StepParams {
             },
             max_guide_probability: config.max_guide_probability,
             guide_cost: config.guide_cost,
+            spatial_threshold: count_threshold(config, iteration),
+            spatial_gain_threshold: f64::from(config.spatial_gain_threshold),
         }
     }
 }
@@ -73,6 +81,8 @@ impl StepParams {
 pub(crate) struct RefineOutcome {
     /// Samples the region had counted in the iteration that ended.
     pub samples: u64,
+    /// Which of its cells split, by gain (`None`: by count).
+    pub plan: Option<SplitPlan>,
     /// Directional cells that qualified for a split but were refused by `max_nodes`.
     pub refused: u64,
 }
@@ -94,6 +104,8 @@ pub(crate) struct Region {
     continuations: ContinuationStats,
     /// The guide of medium vertices, in a field with volumes.
     volume: Option<Box<Guide>>,
+    /// What the leaf's halves saw, in a field that splits spatial leaves by gain.
+    signature: Option<Box<SplitSignature>>,
 }
 
 impl Default for Region {
@@ -120,12 +132,32 @@ impl Region {
             selection: GuideSelection::default(),
             continuations: ContinuationStats::default(),
             volume: None,
+            signature: None,
         }
     }
 
     /// Gives the region a guide for medium vertices, or takes it away.
     pub(crate) fn set_volume(&mut self, volume: Option<Guide>) {
         self.volume = volume.map(Box::new);
+    }
+
+    /// Gives the region a split signature (empty), or takes it away.
+    pub(crate) fn set_signature(&mut self, on: bool) {
+        self.signature = None;
+        if on {
+            self.set_signature_sums(&SignatureSums::default());
+        }
+    }
+
+    /// The split signature's sums, if the region keeps one.
+    pub(crate) fn signature(&self) -> Option<SignatureSums> {
+        self.signature.as_deref().map(SplitSignature::get)
+    }
+
+    /// Sets the split signature's sums (for a region that keeps one).
+    pub(crate) fn set_signature_sums(&mut self, sums: &SignatureSums) {
+        let bins = Bins::of(&self.sampling);
+        self.signature = Some(Box::new(SplitSignature::new(bins, sums)));
     }
 
     /// The guide of medium vertices, if the region keeps one.
@@ -251,6 +283,15 @@ impl Region {
         self.parts(volume).recording.count_sample(square, w2);
     }
 
+    /// Records a sample's second-moment weight `w2` at `square` into the split signature, in
+    /// resolved cell `cell` and null group `group` (see [`crate::spatial_split`]).
+    #[inline]
+    pub(crate) fn record_signature(&self, cell: usize, group: bool, square: Vec2, w2: f64) {
+        if let Some(s) = &self.signature {
+            s.record(cell, group, square, w2);
+        }
+    }
+
     /// Adds one traced continuation's value and cost.
     #[inline]
     /// Returns whether a term was clamped to the sums' range.
@@ -265,6 +306,13 @@ impl Region {
     /// recording trees; the continuation estimate; and the stored surface products for the new
     /// surface guide. A guide that counted no sample keeps its distribution.
     pub(crate) fn refine(&mut self, params: &StepParams) -> RefineOutcome {
+        let plan = self.signature.as_deref().map(|s| {
+            s.get().plan(
+                s.bins(),
+                params.spatial_threshold,
+                params.spatial_gain_threshold,
+            )
+        });
         let splitting = self.continuations.recorded().count > 0;
         self.continuations.step();
         let (mut outcome, rebuilt) = guide::step(
@@ -282,6 +330,10 @@ impl Region {
             outcome.samples = outcome.samples.saturating_add(v.samples);
             outcome.refused += v.refused;
         }
+        if let Some(s) = self.signature.as_deref_mut() {
+            s.restart(Bins::of(&self.sampling));
+        }
+        outcome.plan = plan;
         outcome
     }
 
@@ -300,6 +352,9 @@ impl Region {
             (Some(va), Some(vb)) => guide::same_start(va, vb).map_err(|_| "volume guides")?,
             (None, None) => {}
             _ => return Err("volume guides"),
+        }
+        if a.signature.is_some() != b.signature.is_some() {
+            return Err("split signatures");
         }
         if a.continuations.estimate != b.continuations.estimate {
             return Err("continuation estimates");
@@ -324,6 +379,9 @@ impl Region {
         self.continuations
             .add_recorded(&other.continuations.recorded());
         self.surfaces.add_tally(&other.surfaces);
+        if let (Some(s), Some(o)) = (self.signature.as_deref_mut(), other.signature()) {
+            s.add(&o);
+        }
     }
 
     // --- statistics ---
@@ -361,6 +419,7 @@ impl Region {
             + self.surfaces.bytes()
             + size_of::<Region>()
             + volume
+            + self.signature.as_deref().map_or(0, SplitSignature::bytes)
     }
 
     /// The bytes of the stored surface products.

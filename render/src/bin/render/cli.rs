@@ -1,7 +1,7 @@
 //! The command line: every option with its default and range, parsed by clap into [`Args`].
 
 use clap::{Parser, ValueEnum};
-use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement};
+use sdguide::{DirectionalFilter, GuidingConfig, LeafRule, Refinement, SpatialSplit};
 use sdguide_render::method::{Budget, GUIDE_COST, Method, RECOMMENDED, Rrs};
 use sdguide_render::scenes;
 use std::path::PathBuf;
@@ -75,6 +75,13 @@ struct Cli {
     /// `c`: spatial leaves split past `c·sqrt(2^k)` samples in iteration `k`.
     #[arg(long, default_value_t = GuidingConfig::default().spatial_threshold)]
     spatial_threshold: f32,
+    /// How spatial leaves split: by their sample count, or where their halves see different
+    /// light.
+    #[arg(long, value_enum, default_value = "count")]
+    spatial_split: SpatialSplitArg,
+    /// `τ` of `--spatial-split gain`.
+    #[arg(long, default_value_t = GuidingConfig::default().spatial_gain_threshold)]
+    spatial_gain_threshold: f32,
     /// The Open PGL methods to run (default: `cos` with the `openpgl` feature, else none).
     #[arg(long, value_enum)]
     peer: Option<PeerArg>,
@@ -124,6 +131,8 @@ pub struct Args {
     pub directional_filter: DirectionalFilter,
     pub filter_samples: Option<f32>,
     pub spatial_threshold: f32,
+    pub spatial_split: SpatialSplit,
+    pub spatial_gain_threshold: f32,
     /// Next-event estimation (light sampling at every vertex).
     pub nee: bool,
     /// A trained cache to probe instead of rendering.
@@ -205,6 +214,8 @@ impl Args {
             directional_filter: self.directional_filter,
             filter_samples: self.filter_samples,
             spatial_threshold: self.spatial_threshold,
+            spatial_split: self.spatial_split,
+            spatial_gain_threshold: self.spatial_gain_threshold,
             max_guide_probability: self.max_guide_probability,
             guide_cost: self.guide_cost,
             ..GuidingConfig::default()
@@ -279,6 +290,11 @@ pub fn parse() -> Result<Args, String> {
         },
         filter_samples: cli.filter_samples.0,
         spatial_threshold: cli.spatial_threshold,
+        spatial_split: match cli.spatial_split {
+            SpatialSplitArg::Count => SpatialSplit::Count,
+            SpatialSplitArg::Gain => SpatialSplit::Gain,
+        },
+        spatial_gain_threshold: cli.spatial_gain_threshold,
         nee: cli.nee == OnOff::On,
         probe: cli.probe,
         cost: cli.cost,
@@ -387,6 +403,12 @@ impl RuleArg {
 enum RefinementArg {
     Gain,
     Flux,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum SpatialSplitArg {
+    Count,
+    Gain,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
