@@ -16,10 +16,11 @@
 //! **What a leaf records** under [`SpatialSplit::Gain`]: its own samples' `v²/p` by direction
 //! (`J` = 16 [`Bins`], fine where the leaf's guide is concentrated) and by which of the 8 cells
 //! of its next three levels they fell in (one split per axis, in the tree's x → y → z order),
-//! and each cell's count; exact sums, so the decision is deterministic. Since the triangle inequality makes
-//! any split gain on noisy sums, a null split measures the noise: the same bins over the
-//! leaf's samples grouped by a bit of their position far below any cell (the lowest bit of
-//! the fixed-point coordinates), which sorts samples into two groups that see the same light.
+//! and each cell's count; exact sums, so the decision is deterministic. Since the triangle
+//! inequality makes any split gain on noisy sums, a null split measures the noise: the same
+//! bins over the leaf's samples grouped by a bit of their position far below any cell (the
+//! lowest bit of the fixed-point coordinates), which sorts samples into two groups that see
+//! the same light.
 //! Its relative gain `g₀` is what noise alone gains on `n/2` samples per side; on a cell of
 //! `m` samples noise gains about `g₀·n/m` (the bias of a square root of a sum falls as `1/m`).
 //!
