@@ -11,7 +11,7 @@ use crate::distribution::DirectionalDistribution;
 use crate::exact::MAX_TERM;
 use crate::filter::{SpatialFilter, hash_jitter};
 use crate::moments::{Moments, weights};
-use crate::quadtree::{DirectionalCell, bytes_per_node, tally_priority};
+use crate::quadtree::{DirectionalCell, RefineScratch, bytes_per_node, tally_priority};
 use crate::region::{Guide, RefineOutcome, Region, StepParams};
 use crate::rule::{LeafRule, mixture_value};
 use crate::sample::{RejectReason, Sample};
@@ -373,7 +373,9 @@ impl GuidingField {
         let outcomes: Vec<RefineOutcome> = self
             .regions
             .par_iter_mut()
-            .map(|r| r.refine(&params))
+            .map_init(RefineScratch::default, |scratch, r| {
+                r.refine(&params, scratch)
+            })
             .collect();
         let recorded = outcomes
             .iter()

@@ -38,7 +38,7 @@ mod surfaces;
 pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use phase::{MAX_G, PHASE_DEPTH, PhaseLobe};
 pub(crate) use recording::RecordingTree;
-pub(crate) use refine::{RefineParams, refine};
+pub(crate) use refine::{RefineParams, RefineScratch, refine};
 pub(crate) use sampling::{GRID_BYTES, SamplingNode, SamplingTree};
 pub(crate) use surfaces::{SLOTS, Surfaces, Tallied, WORDS, tally_priority};
 

@@ -5,7 +5,7 @@
 use super::{
     LEAF_BIT, NO_CHILD, RecordingTree, SamplingNode, SamplingTree, cell_area, recording::FREE,
 };
-use crate::moments::own_sums;
+use crate::moments::{Quadrants, own_sums};
 use crate::refinement::Refinement;
 use crate::refinement::{
     MIN_PREDICTED_SPLIT_SAMPLES, MIN_SPLIT_SAMPLES, SPLIT_PRIOR_SAMPLES, split_gain,
@@ -32,12 +32,58 @@ pub(crate) struct RefineParams {
     pub deferred: bool,
 }
 
+/// What one leaf recorded in the ended iteration, as floats: read once per refine, since a
+/// read converts exact sums and the rule's masses and the split keys both need them.
+struct LeafSums {
+    sum: f64,
+    sum_sq: f64,
+    /// The leaf's quadrant sums (its own samples, unfiltered).
+    quadrants: Quadrants,
+    /// The leaf's samples: its quadrants' (saturating).
+    count: u64,
+}
+
 /// Shrunk `(S1, S2)` estimates of a recording tree's cells.
+#[derive(Default)]
 struct ShrunkMoments {
     /// Per interior node.
     nodes: Vec<(f64, f64)>,
     /// Per leaf (moments index).
     leaves: Vec<(f64, f64)>,
+    /// Working memory: per interior node, the pooled sums `(S1, S2, n)` below it.
+    pooled: Vec<(f64, f64, u64)>,
+}
+
+/// The working memory of [`refine`], kept from one directional tree to the next: without it
+/// each tree's refine allocates and frees some twenty vectors, about a tenth of its time in a
+/// profile. Every vector is cleared and sized before use; nothing carries over.
+#[derive(Default)]
+pub(crate) struct RefineScratch {
+    sums: Vec<LeafSums>,
+    depth: Vec<u32>,
+    shrunk: ShrunkMoments,
+    leaf_mass: Vec<f64>,
+    share: Vec<[f64; 4]>,
+    mass: Vec<[f64; 4]>,
+    gain: GainScratch,
+    frontier: Vec<Candidate>,
+}
+
+/// [`RecordingTree::gain_keys`]'s part of [`RefineScratch`].
+#[derive(Default)]
+struct GainScratch {
+    node_root: Vec<f64>,
+    node_gain: Vec<f64>,
+    subtree: Vec<(f64, f64, u64)>,
+    slot: Vec<[f64; 4]>,
+    below_leaf: Vec<[f64; 4]>,
+}
+
+/// `v` cleared and filled with `n` copies of `x`, keeping its allocation.
+fn reset<T: Clone>(v: &mut Vec<T>, n: usize, x: T) -> &mut [T] {
+    v.clear();
+    v.resize(n, x);
+    v
 }
 
 /// What a candidate cell was in the ended iteration's recording tree.
@@ -62,17 +108,17 @@ struct Candidate {
 
 /// How refinement ranks the cells of the ended iteration and decides to split them: a cell
 /// splits while its key exceeds `threshold`.
-struct SplitKeys {
+struct SplitKeys<'a> {
     /// Per interior node of the ended iteration and quadrant: the key of the cell in that slot.
-    slot: Vec<[f64; 4]>,
+    slot: &'a [[f64; 4]],
     /// Variance gain: per leaf of the ended iteration, the predicted gains of its quadrants (and
     /// no split below them). Flux share: `None`, a cell below the old leaves has a quarter of
     /// its parent's share.
-    below_leaf: Option<Vec<[f64; 4]>>,
+    below_leaf: Option<&'a [[f64; 4]]>,
     threshold: f64,
 }
 
-impl SplitKeys {
+impl SplitKeys<'_> {
     /// The keys and origins of the four children of a cell.
     fn children(&self, old: &[[u32; 4]], origin: Origin, key: f64) -> [(f64, Origin); 4] {
         std::array::from_fn(|q| match origin {
@@ -85,11 +131,11 @@ impl SplitKeys {
                 };
                 (self.slot[o as usize][q], origin)
             }
-            Origin::Leaf(k) => match &self.below_leaf {
+            Origin::Leaf(k) => match self.below_leaf {
                 Some(gains) => (gains[k as usize][q], Origin::New),
                 None => (0.25 * key, Origin::New),
             },
-            Origin::New => match &self.below_leaf {
+            Origin::New => match self.below_leaf {
                 Some(_) => (0.0, Origin::New),
                 None => (0.25 * key, Origin::New),
             },
@@ -122,7 +168,7 @@ trait Frontier {
     fn ordered(&self) -> bool;
 }
 
-impl Frontier for Vec<Candidate> {
+impl Frontier for &mut Vec<Candidate> {
     fn push(&mut self, c: Candidate) {
         Vec::push(self, c);
     }
@@ -161,19 +207,34 @@ pub(crate) struct Refined {
     pub recording: RecordingTree,
     /// Cells that qualified for a split but were refused by `max_nodes`.
     pub refused: u64,
+    /// The samples the ended iteration counted.
+    pub samples: u64,
 }
 
 /// Ends an iteration of one directional tree: builds the next sampling tree from the moments
-/// `rec` recorded (pending sums already spread; at least one sample counted) and the next
-/// (empty) recording topology.
-pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
-    let depth = rec.depths();
+/// `rec` recorded (pending sums already spread) and the next (empty) recording topology;
+/// `None` if it counted no sample. `scratch` is working memory (see [`RefineScratch`]).
+pub(crate) fn refine(
+    rec: &RecordingTree,
+    params: &RefineParams,
+    scratch: &mut RefineScratch,
+) -> Option<Refined> {
+    // The leaves' sums are read once, here: a field's sums do not fit in a cache, so every
+    // pass over a tree's costs a trip to memory.
+    let sums = &mut scratch.sums;
+    rec.leaf_sums(sums);
+    let samples = sums.iter().fold(0u64, |n, m| n.saturating_add(m.count));
+    if samples == 0 {
+        return None;
+    }
+    let depth = rec.depths(&mut scratch.depth);
 
     // 1. Leaf shares by the rule, normalized: α_i = mass_i / Σ_j mass_j, from moments
     //    shrunk toward their parents' (see `shrunk_moments`).
-    let shrunk = rec.shrunk_moments(params.prior_samples, params.filter_samples);
+    let shrunk = &mut scratch.shrunk;
+    rec.shrunk_moments(sums, params.prior_samples, params.filter_samples, shrunk);
     let leaf_moments = &shrunk.leaves;
-    let mut leaf_mass = vec![0.0f64; rec.moments.len()];
+    let leaf_mass = reset(&mut scratch.leaf_mass, rec.moments.len(), 0.0);
     for (i, slots) in rec.nodes.iter().enumerate() {
         for &slot in slots {
             if slot & LEAF_BIT != 0 {
@@ -189,8 +250,8 @@ pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
     // 2. Per node and quadrant: the learned share α (drives refinement) and the sampled mass
     //    (1−ε)·α + ε·|C| (drives sampling), summed bottom-up in one reverse sweep.
     let eps = if lit { params.uniform_fraction } else { 1.0 };
-    let mut share = vec![[0.0f64; 4]; rec.nodes.len()];
-    let mut mass = vec![[0.0f64; 4]; rec.nodes.len()];
+    let share = reset(&mut scratch.share, rec.nodes.len(), [0.0; 4]);
+    let mass = reset(&mut scratch.mass, rec.nodes.len(), [0.0; 4]);
     for i in (0..rec.nodes.len()).rev() {
         let area = cell_area(depth[i] + 1);
         for (q, &slot) in rec.nodes[i].iter().enumerate() {
@@ -212,7 +273,7 @@ pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
     let sampling = SamplingTree::new(
         rec.nodes
             .iter()
-            .zip(&mass)
+            .zip(mass.iter())
             .map(|(slots, &m)| {
                 // Interior indices fit: `max_nodes` is validated to at most `MAX_NODES`.
                 let child = slots.map(|s| {
@@ -234,14 +295,15 @@ pub(crate) fn refine(rec: &RecordingTree, params: &RefineParams) -> Refined {
             below_leaf: None,
             threshold: params.subdivision_threshold,
         },
-        Refinement::VarianceGain => rec.gain_keys(&depth, params),
+        Refinement::VarianceGain => rec.gain_keys(sums, depth, params, shrunk, &mut scratch.gain),
     };
-    let (recording, refused) = refined_topology(&rec.nodes, &keys, params);
-    Refined {
+    let (recording, refused) = refined_topology(&rec.nodes, &keys, params, &mut scratch.frontier);
+    Some(Refined {
         sampling,
         recording,
         refused,
-    }
+        samples,
+    })
 }
 
 /// Grows a new topology from the root: a cell whose key exceeds the threshold becomes
@@ -255,8 +317,10 @@ fn refined_topology(
     old: &[[u32; 4]],
     keys: &SplitKeys,
     params: &RefineParams,
+    stack: &mut Vec<Candidate>,
 ) -> (RecordingTree, u64) {
-    let mut grown = grow(old, keys, params, Vec::new());
+    stack.clear();
+    let mut grown = grow(old, keys, params, stack);
     if grown.gave_up {
         grown = grow(old, keys, params, BinaryHeap::new());
     }
@@ -274,8 +338,12 @@ fn grow(
     params: &RefineParams,
     mut frontier: impl Frontier,
 ) -> Grown {
+    // Room for the ended iteration's nodes and a quarter more: a refine mostly keeps a
+    // topology and grows it a little, and growing the vector node by node costs reallocations.
+    let mut nodes = Vec::with_capacity(old.len() + old.len() / 4 + 1);
+    nodes.push([FREE; 4]);
     let mut out = Grown {
-        nodes: vec![[FREE; 4]],
+        nodes,
         refused: 0,
         gave_up: false,
     };
@@ -320,6 +388,27 @@ fn grow(
 // marked `#[inline]`: left out of line, as the split into modules left them, `refine` took 1–2%
 // longer.
 impl RecordingTree {
+    /// Every leaf's sums as floats, by moments index, into `out`.
+    #[inline]
+    fn leaf_sums(&self, out: &mut Vec<LeafSums>) {
+        out.clear();
+        out.extend(
+            self.moments
+                .iter()
+                .zip(self.quadrants.iter())
+                .map(|(m, q)| {
+                    let (sum, sum_sq) = m.exact();
+                    let quadrants = q.get();
+                    LeafSums {
+                        sum: sum.value(),
+                        sum_sq: sum_sq.value(),
+                        count: own_sums(&quadrants).1,
+                        quadrants,
+                    }
+                }),
+        );
+    }
+
     /// Each leaf's `(S1, S2)` shrunk toward its parent's: top-down, a cell's estimate is
     /// `w · (its own pooled sums) + (1 − w) · (its parent's estimate) / 4` with
     /// `w = n / (n + n0)`, `n` the samples that fell in the cell and `n0 = prior_samples`.
@@ -339,31 +428,38 @@ impl RecordingTree {
     /// filter that spreads, the two are equal; only the l2 rules' masses read the second
     /// moment, so l1's are unaffected.
     #[inline]
-    fn shrunk_moments(&self, prior_samples: f64, filter_samples: Option<f64>) -> ShrunkMoments {
-        // Read once: `shrink` visits every leaf twice, and a read converts exact sums.
-        let leaves: Vec<(f64, f64, u64)> = (0..self.moments.len())
-            .map(|k| {
-                let m = self.moments_of(k);
-                let sum_sq = match filter_samples {
-                    Some(nf) if m.count > 0 => {
-                        let (own, _) = own_sums(&self.quadrants[k].get());
-                        let n = m.count as f64;
-                        let w = n / (n + nf);
-                        w * own + (1.0 - w) * m.sum_sq
-                    }
-                    _ => m.sum_sq,
-                };
-                (m.sum, sum_sq, m.count)
-            })
-            .collect();
-        self.shrink(prior_samples, |k| leaves[k])
+    fn shrunk_moments(
+        &self,
+        sums: &[LeafSums],
+        prior_samples: f64,
+        filter_samples: Option<f64>,
+        out: &mut ShrunkMoments,
+    ) {
+        self.shrink(prior_samples, out, |k| {
+            let m = &sums[k];
+            let sum_sq = match filter_samples {
+                Some(nf) if m.count > 0 => {
+                    let (own, _) = own_sums(&m.quadrants);
+                    let n = m.count as f64;
+                    let w = n / (n + nf);
+                    w * own + (1.0 - w) * m.sum_sq
+                }
+                _ => m.sum_sq,
+            };
+            (m.sum, sum_sq, m.count)
+        })
     }
 
-    /// [`shrunk_moments`](Self::shrunk_moments) of any per-leaf sums `(S1, S2, n)`.
-    fn shrink(&self, prior_samples: f64, leaf: impl Fn(usize) -> (f64, f64, u64)) -> ShrunkMoments {
+    /// [`shrunk_moments`](Self::shrunk_moments) of any per-leaf sums `(S1, S2, n)`, into `out`.
+    fn shrink(
+        &self,
+        prior_samples: f64,
+        out: &mut ShrunkMoments,
+        leaf: impl Fn(usize) -> (f64, f64, u64),
+    ) {
         let n = self.nodes.len();
         // Pooled sums per node, bottom-up (children have larger indices than their parents).
-        let mut pooled = vec![(0.0f64, 0.0f64, 0u64); n];
+        let pooled = reset(&mut out.pooled, n, (0.0, 0.0, 0));
         let slot_moments = |slot: u32, pooled: &[(f64, f64, u64)]| {
             if slot & LEAF_BIT != 0 {
                 leaf((slot & !LEAF_BIT) as usize)
@@ -373,18 +469,18 @@ impl RecordingTree {
         };
         for i in (0..n).rev() {
             pooled[i] = self.nodes[i].iter().fold((0.0, 0.0, 0), |a, &slot| {
-                let m = slot_moments(slot, &pooled);
+                let m = slot_moments(slot, pooled);
                 (a.0 + m.0, a.1 + m.1, a.2.saturating_add(m.2))
             });
         }
         // Shrunk estimates, top-down.
-        let mut estimate = vec![(0.0f64, 0.0f64); n];
-        let mut leaves = vec![(0.0f64, 0.0f64); self.moments.len()];
+        let estimate = reset(&mut out.nodes, n, (0.0, 0.0));
+        let leaves = reset(&mut out.leaves, self.moments.len(), (0.0, 0.0));
         estimate[0] = (pooled[0].0, pooled[0].1);
         for i in 0..n {
             let prior = (0.25 * estimate[i].0, 0.25 * estimate[i].1);
             for &slot in &self.nodes[i] {
-                let (s1, s2, count) = slot_moments(slot, &pooled);
+                let (s1, s2, count) = slot_moments(slot, pooled);
                 let w = if prior_samples > 0.0 {
                     count as f64 / (count as f64 + prior_samples)
                 } else {
@@ -398,33 +494,32 @@ impl RecordingTree {
                 }
             }
         }
-        ShrunkMoments {
-            nodes: estimate,
-            leaves,
-        }
     }
 
     /// Split keys for [`Refinement::VarianceGain`]: each cell's estimated gain
     /// `sqrt(m) − Σ_q sqrt(m_q)` (in units of `sqrt(|C|·S2)` of the shrunk sums), and the
     /// threshold `gain_threshold · Σ_leaves sqrt(m)`. Interior cells take their children's
-    /// estimates, leaves their quadrant sums (see [`crate::refinement`]).
+    /// estimates, leaves their quadrant sums (see [`crate::refinement`]). `shrunk` and
+    /// `scratch` are working memory; the keys live in `scratch`.
     #[inline]
-    fn gain_keys(&self, depth: &[u32], params: &RefineParams) -> SplitKeys {
-        let quadrants: Vec<_> = self.quadrants.iter().map(|q| q.get()).collect();
+    fn gain_keys<'a>(
+        &self,
+        sums: &[LeafSums],
+        depth: &[u32],
+        params: &RefineParams,
+        shrunk: &mut ShrunkMoments,
+        scratch: &'a mut GainScratch,
+    ) -> SplitKeys<'a> {
         // Every cell's second moment from the same unfiltered samples as the quadrant sums, so
         // that a cell's gain means the same whether it was a leaf or interior.
-        let per_leaf: Vec<(f64, f64, u64)> = quadrants
-            .iter()
-            .map(|q| {
-                let (s2, n) = own_sums(q);
-                (0.0, s2, n)
-            })
-            .collect();
-        let shrunk = self.shrink(SPLIT_PRIOR_SAMPLES, |k| per_leaf[k]);
+        self.shrink(SPLIT_PRIOR_SAMPLES, shrunk, |k| {
+            let (s2, n) = own_sums(&sums[k].quadrants);
+            (0.0, s2, n)
+        });
         let root_of = |s2: f64, d: u32| (cell_area(d) * s2.max(0.0)).sqrt();
-        let node_root: Vec<f64> = (0..self.nodes.len())
-            .map(|i| root_of(shrunk.nodes[i].1, depth[i]))
-            .collect();
+        let node_root = &mut scratch.node_root;
+        node_root.clear();
+        node_root.extend((0..self.nodes.len()).map(|i| root_of(shrunk.nodes[i].1, depth[i])));
         let slot_root = |i: usize, s: u32| match s & LEAF_BIT {
             0 => node_root[s as usize],
             _ => root_of(shrunk.leaves[(s & !LEAF_BIT) as usize].1, depth[i] + 1),
@@ -439,18 +534,15 @@ impl RecordingTree {
         // default thresholds, and at a node budget it lowered the partitions' oracle but not
         // below flux share's (docs/quality.md, "Why the gain partitions trail in those two
         // cells").
-        let node_gain: Vec<f64> = self
-            .nodes
-            .iter()
-            .enumerate()
-            .map(|(i, slots)| {
-                (node_root[i] - slots.iter().map(|&s| slot_root(i, s)).sum::<f64>()).max(0.0)
-            })
-            .collect();
+        let node_gain = &mut scratch.node_gain;
+        node_gain.clear();
+        node_gain.extend(self.nodes.iter().enumerate().map(|(i, slots)| {
+            (node_root[i] - slots.iter().map(|&s| slot_root(i, s)).sum::<f64>()).max(0.0)
+        }));
         // What each interior cell's subtree gained in all, its interior nodes and the samples
         // that landed in it, bottom-up.
-        let leaf_count = |k: usize| quadrants[k].iter().fold(0u64, |a, q| a.saturating_add(q.1));
-        let mut subtree = vec![(0.0f64, 0.0f64, 0u64); self.nodes.len()];
+        let leaf_count = |k: usize| sums[k].count;
+        let subtree = reset(&mut scratch.subtree, self.nodes.len(), (0.0, 0.0, 0));
         for i in (0..self.nodes.len()).rev() {
             let mut acc = (node_gain[i], 1.0, 0u64);
             for &s in &self.nodes[i] {
@@ -466,8 +558,8 @@ impl RecordingTree {
         // A cell that saw fewer than `least` samples does not split: MIN_SPLIT_SAMPLES for
         // cells of the ended iteration, MIN_PREDICTED_SPLIT_SAMPLES for a leaf's quadrants.
         let enough = |n: u64, least: u64, key: f64| if n >= least { key } else { 0.0 };
-        let mut slot = vec![[0.0f64; 4]; self.nodes.len()];
-        let mut below_leaf = vec![[0.0f64; 4]; self.moments.len()];
+        let slot = reset(&mut scratch.slot, self.nodes.len(), [0.0; 4]);
+        let below_leaf = reset(&mut scratch.below_leaf, self.moments.len(), [0.0; 4]);
         let mut total = 0.0;
         for (i, slots) in self.nodes.iter().enumerate() {
             // A leaf's relative gain is shrunk toward its parent's.
@@ -488,12 +580,13 @@ impl RecordingTree {
                     )
                 } else {
                     let k = (s & !LEAF_BIT) as usize;
-                    let e = split_gain(&quadrants[k], SPLIT_PRIOR_SAMPLES, parent);
+                    let quadrants = &sums[k].quadrants;
+                    let e = split_gain(quadrants, SPLIT_PRIOR_SAMPLES, parent);
                     let r = slot_root(i, s);
                     total += r;
                     below_leaf[k] = std::array::from_fn(|c| {
                         let key = r * e.fractions[c] * e.relative_gain;
-                        enough(quadrants[k][c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
+                        enough(quadrants[c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
                     });
                     enough(leaf_count(k), MIN_SPLIT_SAMPLES, r * e.relative_gain)
                 };
@@ -501,15 +594,15 @@ impl RecordingTree {
         }
         SplitKeys {
             slot,
-            below_leaf: Some(below_leaf),
+            below_leaf: Some(&*below_leaf),
             threshold: params.gain_threshold * total,
         }
     }
 
-    /// The depth of every node (the root is 0), from one forward sweep.
+    /// The depth of every node (the root is 0), from one forward sweep, in `depth`.
     #[inline]
-    fn depths(&self) -> Vec<u32> {
-        let mut depth = vec![0u32; self.nodes.len()];
+    fn depths<'a>(&self, depth: &'a mut Vec<u32>) -> &'a [u32] {
+        let depth = reset(depth, self.nodes.len(), 0);
         for i in 0..self.nodes.len() {
             for &slot in &self.nodes[i] {
                 if slot & LEAF_BIT == 0 {

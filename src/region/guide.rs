@@ -10,7 +10,7 @@
 
 use super::{RefineOutcome, StepParams};
 use crate::guide_probability::GuideSelection;
-use crate::quadtree::{self, RecordingTree, SamplingTree};
+use crate::quadtree::{self, RecordingTree, RefineScratch, SamplingTree};
 use crate::stats::FieldStats;
 
 /// The guide of a region's medium vertices.
@@ -39,13 +39,19 @@ impl Guide {
     }
 
     /// Ends an iteration (see [`step`]).
-    pub(crate) fn step(&mut self, params: &StepParams, splitting: bool) -> (RefineOutcome, bool) {
+    pub(crate) fn step(
+        &mut self,
+        params: &StepParams,
+        splitting: bool,
+        scratch: &mut RefineScratch,
+    ) -> (RefineOutcome, bool) {
         step(
             &mut self.sampling,
             &mut self.recording,
             &mut self.selection,
             params,
             splitting,
+            scratch,
         )
     }
 
@@ -113,13 +119,15 @@ impl<T: GuideView> GuideView for &T {
 /// Ends a guide's iteration: one step of the guide probability (and whether the guide pays for
 /// its cost: not asked where the region's renderer recorded continuations, `splitting`), then
 /// the next sampling and recording trees. A guide that counted no sample keeps its
-/// distribution. Returns what it did and whether the sampling tree changed.
+/// distribution. Returns what it did and whether the sampling tree changed. `scratch` is
+/// working memory.
 pub(crate) fn step(
     sampling: &mut SamplingTree,
     recording: &mut RecordingTree,
     selection: &mut GuideSelection,
     params: &StepParams,
     splitting: bool,
+    scratch: &mut RefineScratch,
 ) -> (RefineOutcome, bool) {
     // Where the renderer recorded continuations (efficiency-aware roulette or splitting), the
     // guide stays on: the factors follow continuation estimates the guide shapes, so what the
@@ -127,19 +135,17 @@ pub(crate) fn step(
     let cost = params.guide_cost.filter(|_| !splitting);
     selection.step(params.max_guide_probability, cost);
     recording.flush_pending_mut();
-    let samples = recording.count();
-    if samples == 0 {
+    let Some(next) = quadtree::refine(recording, &params.tree, scratch) else {
         // Nothing landed here; shares a box filter spread in from neighbouring regions are not
         // enough to learn from (shrinkage weighs by counted samples), so they are dropped with
         // the iteration, and the distribution stays.
         recording.clear_moments();
         return (RefineOutcome::default(), false);
-    }
-    let next = quadtree::refine(recording, &params.tree);
+    };
     *sampling = next.sampling;
     *recording = next.recording;
     let outcome = RefineOutcome {
-        samples,
+        samples: next.samples,
         refused: next.refused,
         plan: None,
     };

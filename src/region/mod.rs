@@ -28,8 +28,8 @@ use crate::filter::DirectionalFilter;
 use crate::guide_probability::GuideSelection;
 use crate::moments::Moments;
 use crate::quadtree::{
-    DirectionalCell, GRID_BYTES, RecordingTree, RefineParams, SamplingTree, Surfaces, Tallied,
-    leaf_bytes,
+    DirectionalCell, GRID_BYTES, RecordingTree, RefineParams, RefineScratch, SamplingTree,
+    Surfaces, Tallied, leaf_bytes,
 };
 use crate::spatial_split::{Bins, SignatureSums, SplitPlan, SplitSignature, count_threshold};
 use crate::splitting::{ContinuationEstimate, ContinuationStats};
@@ -304,8 +304,13 @@ impl Region {
     /// Ends an iteration: for the surface guide and the medium one, one step of the guide
     /// probability (and whether the guide pays for its cost) and the next sampling and
     /// recording trees; the continuation estimate; and the stored surface products for the new
-    /// surface guide. A guide that counted no sample keeps its distribution.
-    pub(crate) fn refine(&mut self, params: &StepParams) -> RefineOutcome {
+    /// surface guide. A guide that counted no sample keeps its distribution. `scratch` is
+    /// working memory, kept from one region to the next.
+    pub(crate) fn refine(
+        &mut self,
+        params: &StepParams,
+        scratch: &mut RefineScratch,
+    ) -> RefineOutcome {
         let plan = self.signature.as_deref().map(|s| {
             s.get().plan(
                 s.bins(),
@@ -321,12 +326,13 @@ impl Region {
             &mut self.selection,
             params,
             splitting,
+            scratch,
         );
         if rebuilt {
             self.surfaces.refine(&self.sampling);
         }
         if let Some(g) = self.volume.as_deref_mut() {
-            let (v, _) = g.step(params, splitting);
+            let (v, _) = g.step(params, splitting, scratch);
             outcome.samples = outcome.samples.saturating_add(v.samples);
             outcome.refused += v.refused;
         }
