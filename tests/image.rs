@@ -99,6 +99,62 @@ fn the_renderers_estimate_replaces_the_mean() {
 }
 
 #[test]
+fn a_bright_neighbour_raises_a_pixels_value_at_most_threefold_its_neighbourhoods_median() {
+    // A 4×4 image of 0.1 with a 2×2 light of 60 in its corner. The mean over the neighbourhood
+    // alone would give the pixel diagonal to the light (60 + 8·0.1)/9 ≈ 6.8, 68 times its value.
+    let mut image = ImageStatistics::new(4, 4);
+    let light = |x: usize, y: usize| x < 2 && y < 2;
+    let values: Vec<f32> = (0..16)
+        .map(|p| if light(p % 4, p / 4) { 60.0 } else { 0.1 })
+        .collect();
+    image.set_estimate(Some(&values));
+    let p = |v: f32| (v * v + ImageStatistics::DEFAULT_EPSILON).sqrt();
+    let near = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b;
+    // Beside the light: its neighbourhood's median is 0.1 (the lower middle value where the
+    // border leaves an even count), so Ĩ = 3 · 0.1.
+    for (x, y) in [(2, 2), (2, 0), (2, 1), (0, 2)] {
+        assert!(
+            near(image.pixel(y * 4 + x), p(3.0 * 0.1)),
+            "pixel ({x}, {y})"
+        );
+    }
+    // Away from it, the mean: 0.1.
+    assert!(near(image.pixel(15), p(0.1)));
+    // Inside the light: 4 of its corner pixel's 4 neighbours are the light (the mean, 60), 4
+    // of its edge pixel's 6 (median 60, mean 40.03).
+    assert!(near(image.pixel(0), p(60.0)));
+    assert!(near(image.pixel(1), p((4.0 * 60.0 + 2.0 * 0.1) / 6.0)));
+    // V̄ divides by P from the neighbourhood's mean alone: a pass of ±0.05 about each value,
+    // 8 samples a pixel (sample variance 8/7·0.0025 everywhere).
+    for i in 0..8 {
+        for (pixel, &v) in values.iter().enumerate() {
+            image.add(pixel, if i % 2 == 0 { v - 0.05 } else { v + 0.05 }, 1.0);
+        }
+    }
+    image.end_pass();
+    let mean = |x: usize, y: usize| {
+        let (mut sum, mut n) = (0.0f32, 0.0f32);
+        for yy in y.saturating_sub(1)..(y + 2).min(4) {
+            for xx in x.saturating_sub(1)..(x + 2).min(4) {
+                sum += values[yy * 4 + xx];
+                n += 1.0;
+            }
+        }
+        sum / n
+    };
+    let var = 8.0 / 7.0 * 0.0025;
+    let expected = (0..16)
+        .map(|q| var / f64::from(p(mean(q % 4, q / 4)).powi(2)))
+        .sum::<f64>()
+        / 16.0;
+    let got = image.relative_variance().unwrap();
+    assert!(
+        (got - expected).abs() <= 1e-4 * expected,
+        "{got} {expected}"
+    );
+}
+
+#[test]
 fn bad_samples_count_as_zero_and_stray_pixels_are_ignored() {
     let mut image = ImageStatistics::new(2, 1);
     for v in [f32::NAN, f32::INFINITY, -1.0, 2.0] {
