@@ -34,6 +34,7 @@ mod refine;
 mod sampling;
 mod splat;
 mod surfaces;
+mod topology;
 
 pub(crate) use horizon::{HORIZON_DEPTH, SURFACE_DEPTH, SurfaceTree};
 pub(crate) use phase::{MAX_G, PHASE_DEPTH, PhaseLobe};
