@@ -219,16 +219,19 @@ impl ImageStatistics {
     /// pass and outside the image).
     #[inline]
     pub fn pixel(&self, pixel: usize) -> f32 {
-        self.pixels
-            .get(pixel)
-            .copied()
-            .unwrap_or_else(|| self.epsilon.sqrt())
+        self.p_in(&self.pixels, pixel)
     }
 
     /// `P` of a pixel from its neighbourhood's mean alone, without the median's bound: what
     /// `V̄` and [`pass_weights`] divide by.
     fn mean_pixel(&self, pixel: usize) -> f32 {
-        self.mean_pixels
+        self.p_in(&self.mean_pixels, pixel)
+    }
+
+    /// Pixel `pixel`'s `P` in `values`, `sqrt(ε)` outside the image.
+    #[inline]
+    fn p_in(&self, values: &[f32], pixel: usize) -> f32 {
+        values
             .get(pixel)
             .copied()
             .unwrap_or_else(|| self.epsilon.sqrt())
