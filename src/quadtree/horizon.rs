@@ -53,6 +53,7 @@ use super::product::{Cursor, Draw, Lobe};
 use super::sampling::{Descent, place, unit};
 use super::{FIXED_BITS, NO_CHILD, RESUME, SamplingNode, SamplingTree, fixed};
 use glam::{Vec2, Vec3, Vec4};
+use std::cell::RefCell;
 
 /// How deep the product follows the cosine inside the guide's leaves where the horizon does not
 /// cross them (cells at this depth have chord radius 0.018).
@@ -189,6 +190,16 @@ pub(crate) struct SurfaceTree {
     tree: SamplingTree,
 }
 
+thread_local! {
+    /// [`SurfaceTree::build`]'s working memory, kept per thread (`refine` builds the stored
+    /// products of every spatial leaf on rayon's threads): the nodes, as many as the largest
+    /// product the thread built had (at most [`MAX_SURFACE_NODES`], 2 MB), and the cells still
+    /// to visit (a depth-first stack, a few per level).
+    #[allow(clippy::type_complexity, reason = "two vectors, named where they are used")]
+    static BUILD: RefCell<(Vec<SamplingNode>, Vec<(usize, Cursor)>)> =
+        const { RefCell::new((Vec::new(), Vec::new())) };
+}
+
 /// At most this many nodes in a [`SurfaceTree`]; a guide too large for it gets none (the
 /// per-query product serves its queries).
 const MAX_SURFACE_NODES: usize = RESUME as usize;
@@ -197,8 +208,26 @@ impl SurfaceTree {
     /// The product of `guide` with the clamped cosine about the unit normal `n`; `None` if it
     /// would exceed the node limit.
     pub(crate) fn build(guide: &SamplingTree, n: Vec3) -> Option<Self> {
-        let mut nodes = vec![SamplingNode::UNIFORM];
-        let mut open = vec![(0usize, Cursor::ROOT)];
+        BUILD.with_borrow_mut(|(nodes, open)| {
+            let nodes = Self::nodes(guide, n, nodes, open)?;
+            Some(Self {
+                normal: n,
+                tree: SamplingTree::new(nodes.into()),
+            })
+        })
+    }
+
+    /// The nodes of [`build`](Self::build), built in `nodes` (`open` is working memory).
+    fn nodes<'a>(
+        guide: &SamplingTree,
+        n: Vec3,
+        nodes: &'a mut Vec<SamplingNode>,
+        open: &mut Vec<(usize, Cursor)>,
+    ) -> Option<&'a [SamplingNode]> {
+        nodes.clear();
+        nodes.push(SamplingNode::UNIFORM);
+        open.clear();
+        open.push((0, Cursor::ROOT));
         let lobe = ClampedCosine(n);
         while let Some((i, at)) = open.pop() {
             let level = at.level(guide, &lobe);
@@ -221,10 +250,7 @@ impl SurfaceTree {
             }
             nodes[i] = SamplingNode::from_masses(level.w.map(f64::from), child);
         }
-        Some(Self {
-            normal: n,
-            tree: SamplingTree::new(nodes.into_boxed_slice()),
-        })
+        Some(nodes)
     }
 
     /// [`SamplingTree::sample_surface`] for this normal, through the stored product.

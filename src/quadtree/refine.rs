@@ -386,15 +386,22 @@ impl RecordingTree {
                     )
                 } else {
                     let k = (s & !LEAF_BIT) as usize;
-                    let quadrants = &sums[k].quadrants;
-                    let e = split_gain(quadrants, SPLIT_PRIOR_SAMPLES, parent);
                     let r = slot_root(i, s);
                     total += r;
-                    below_leaf[k] = std::array::from_fn(|c| {
-                        let key = r * e.fractions[c] * e.relative_gain;
-                        enough(quadrants[c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
-                    });
-                    enough(leaf_count(k), MIN_SPLIT_SAMPLES, r * e.relative_gain)
+                    if leaf_count(k) < MIN_SPLIT_SAMPLES.min(MIN_PREDICTED_SPLIT_SAMPLES) {
+                        // Neither the leaf nor a quadrant (which counts no more) saw enough
+                        // to split, so every key is 0 (`below_leaf` is reset to 0): most
+                        // leaves, and the estimate was a tenth of `refine`.
+                        0.0
+                    } else {
+                        let quadrants = &sums[k].quadrants;
+                        let e = split_gain(quadrants, SPLIT_PRIOR_SAMPLES, parent);
+                        below_leaf[k] = std::array::from_fn(|c| {
+                            let key = r * e.fractions[c] * e.relative_gain;
+                            enough(quadrants[c].1, MIN_PREDICTED_SPLIT_SAMPLES, key)
+                        });
+                        enough(leaf_count(k), MIN_SPLIT_SAMPLES, r * e.relative_gain)
+                    }
                 };
             }
         }

@@ -14,6 +14,7 @@
 use super::{DirectionalCell, FIXED_BITS, NO_CHILD, RESUME, fixed, quadrant_bits};
 use crate::sphere::{ONE_MINUS_EPSILON, ROUND_TRIP_BOUND};
 use glam::{Vec2, Vec4};
+use std::cell::RefCell;
 use std::sync::LazyLock;
 
 /// The depth of the cells [`Grid`] flattens the tree into: 16 × 16 of them. Each level deeper
@@ -83,8 +84,13 @@ impl Grid {
         });
         let mut mass = [0.0f64; CELLS];
         // (node, its cell's x and y at its depth, the depth, the cell's mass)
-        let mut open = vec![(0usize, 0usize, 0usize, 0u32, 1.0f64)];
-        while let Some((i, x, y, depth, m)) = open.pop() {
+        // At most three siblings wait at each of the levels above the grid's depth, and the
+        // four children of the node taken: a stack on the stack.
+        let mut open = [(0usize, 0usize, 0usize, 0u32, 1.0f64); 4 * GRID_DEPTH as usize];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let (i, x, y, depth, m) = open[len];
             let n = &nodes[i];
             for (q, &child) in n.child.iter().enumerate() {
                 let (ix, iy) = (q & 1, q >> 1);
@@ -92,7 +98,8 @@ impl Grid {
                 let (cx, cy, d) = (2 * x + ix, 2 * y + iy, depth + 1);
                 // No RESUME this shallow (STORED_DEPTH > GRID_DEPTH).
                 if child != NO_CHILD && d < GRID_DEPTH {
-                    open.push((usize::from(child), cx, cy, d, mq));
+                    open[len] = (usize::from(child), cx, cy, d, mq);
+                    len += 1;
                     continue;
                 }
                 // The quadrant is a leaf, or a node at the grid's depth: it covers `span²` cells,
@@ -262,6 +269,13 @@ pub(super) struct Descent {
     pub(super) resume: bool,
 }
 
+thread_local! {
+    /// [`SamplingTree::new`]'s working memory, kept per thread: `refine` builds hundreds of
+    /// trees (a guide and its stored surface products per spatial leaf) on rayon's threads.
+    /// It holds 20 bytes per node of the largest tree the thread built.
+    static PATHS: RefCell<Vec<(Vec2, Vec2, u32)>> = const { RefCell::new(Vec::new()) };
+}
+
 /// The read-only, piecewise-constant density on the square that queries use.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct SamplingTree {
@@ -292,11 +306,19 @@ impl SamplingTree {
     /// interval level by level; so the cuts are bit for bit the values that descent would
     /// compare against. (Nodes above the grid's depth get cuts no descent reads.)
     pub(crate) fn new(nodes: Box<[SamplingNode]>) -> Self {
-        let mut interval = vec![(Vec2::ZERO, Vec2::ONE); nodes.len()];
-        let mut depth = vec![0u32; nodes.len()];
+        let cuts = PATHS.with_borrow_mut(|paths| Self::cuts(&nodes, paths));
+        let grid = Grid::new(&nodes, cuts);
+        Self { nodes, grid }
+    }
+
+    /// The cuts of [`new`](Self::new); `paths` is working memory, per node the interval of
+    /// `u` that leads to it and its depth.
+    fn cuts(nodes: &[SamplingNode], paths: &mut Vec<(Vec2, Vec2, u32)>) -> Box<[Cuts]> {
+        paths.clear();
+        paths.resize(nodes.len(), (Vec2::ZERO, Vec2::ONE, 0));
         let mut cuts = Vec::with_capacity(nodes.len());
         for (i, n) in nodes.iter().enumerate() {
-            let (a, w) = interval[i];
+            let (a, w, depth) = paths[i];
             let left = w.x * n.px[0];
             let low = [w.y * n.py[0][0], w.y * n.py[1][0]];
             // A part of probability zero is never taken: `u ≥ a` holds exactly along the
@@ -316,22 +338,21 @@ impl SamplingTree {
             for (q, &c) in n.child.iter().enumerate() {
                 let (ix, iy) = (q & 1, q >> 1);
                 // Children come after their parents; a forged file is checked before this.
-                if let Some(slot) = interval.get_mut(usize::from(c)).filter(|_| c != NO_CHILD) {
-                    let d = depth[i] + 1;
-                    depth[usize::from(c)] = d;
+                if let Some(slot) = paths.get_mut(usize::from(c)).filter(|_| c != NO_CHILD) {
+                    let d = depth + 1;
                     *slot = if d == GRID_DEPTH {
-                        (Vec2::ZERO, Vec2::ONE)
+                        (Vec2::ZERO, Vec2::ONE, d)
                     } else {
                         (
                             Vec2::new(a.x + left * ix as f32, a.y + low[ix] * iy as f32),
                             Vec2::new(w.x * n.px[ix], w.y * n.py[ix][iy]),
+                            d,
                         )
                     };
                 }
             }
         }
-        let grid = Grid::new(&nodes, cuts.into_boxed_slice());
-        Self { nodes, grid }
+        cuts.into_boxed_slice()
     }
 
     /// The nodes, root first.
