@@ -61,7 +61,19 @@ pub struct FieldArguments {
 }
 
 pub const SPATIAL_STRUCTURE_KDTREE: i32 = 0;
+
+/// `PGLKDTreeArguments`, what `spatial_structure_arguments` points to for the kd-tree.
+#[repr(C)]
+pub struct KdTreeArguments {
+    pub knn_lookup: bool,
+    pub is_knn_lookup: bool,
+    pub min_samples: usize,
+    pub max_samples: usize,
+    pub max_depth: usize,
+}
 pub const DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM: i32 = 0;
+pub const DIRECTIONAL_DISTRIBUTION_QUADTREE: i32 = 1;
+pub const DIRECTIONAL_DISTRIBUTION_VMM: i32 = 2;
 pub const DEVICE_TYPE_CPU_4: i32 = 0;
 pub const DEVICE_TYPE_CPU_8: i32 = 1;
 /// `PGL_TREE_MAX_SAMPLE_PER_LEAF`, the library's default.

@@ -58,6 +58,36 @@ pub struct Record {
     pub volume: bool,
 }
 
+/// Which directional distribution an Open PGL field fits in each spatial region.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Directional {
+    /// Its default and Cycles': a mixture of von Mises–Fisher lobes whose means move with the
+    /// query point by the distances recorded (parallax).
+    ParallaxAwareVmm,
+    /// The same mixture without parallax compensation.
+    Vmm,
+    /// Its directional quadtree (Open PGL's `DQT`).
+    QuadTree,
+}
+
+/// What a [`Guide`] is built with, beyond Open PGL's defaults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Arguments {
+    /// The distribution fitted in every region (default [`Directional::ParallaxAwareVmm`]).
+    pub directional: Directional,
+    /// A kd-tree leaf splits once it holds more samples than this (default 32000, Open PGL's).
+    pub max_samples_per_leaf: usize,
+}
+
+impl Default for Arguments {
+    fn default() -> Self {
+        Self {
+            directional: Directional::ParallaxAwareVmm,
+            max_samples_per_leaf: ffi::TREE_MAX_SAMPLE_PER_LEAF,
+        }
+    }
+}
+
 /// Distinguishes fields in the thread-local pool of distributions.
 static NEXT_FIELD_ID: AtomicU64 = AtomicU64::new(1);
 
@@ -90,13 +120,33 @@ impl Guide {
     ///
     /// A message when Open PGL cannot create its device, field or sample storage.
     pub fn new(bounds: Aabb, cosine_product: bool, threads: usize) -> Result<Guide, String> {
+        Self::with_arguments(bounds, Arguments::default(), cosine_product, threads)
+    }
+
+    /// [`new`](Self::new) with another directional distribution or leaf size.
+    ///
+    /// # Errors
+    ///
+    /// As [`new`](Self::new).
+    pub fn with_arguments(
+        bounds: Aabb,
+        chosen: Arguments,
+        cosine_product: bool,
+        threads: usize,
+    ) -> Result<Guide, String> {
         let device_type = if cfg!(target_arch = "x86_64") && avx2() {
             ffi::DEVICE_TYPE_CPU_8
         } else {
             ffi::DEVICE_TYPE_CPU_4
         };
+        let directional = match chosen.directional {
+            Directional::ParallaxAwareVmm => ffi::DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM,
+            Directional::Vmm => ffi::DIRECTIONAL_DISTRIBUTION_VMM,
+            Directional::QuadTree => ffi::DIRECTIONAL_DISTRIBUTION_QUADTREE,
+        };
         // SAFETY: plain constructor calls; every returned pointer is checked before use, and
         // what `pglFieldArgumentsSetDefaults` fills in is handed to the field it configures.
+        // Its spatial arguments are the kd-tree's, as the spatial type asked for says.
         unsafe {
             let device = ffi::pglNewDevice(device_type, threads);
             if device.is_null() {
@@ -105,18 +155,28 @@ impl Guide {
             let mut arguments = ffi::FieldArguments {
                 spatial_structure_type: ffi::SPATIAL_STRUCTURE_KDTREE,
                 spatial_structure_arguments: std::ptr::null_mut(),
-                directional_distribution_type: ffi::DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM,
+                directional_distribution_type: directional,
                 directional_distribution_arguments: std::ptr::null_mut(),
                 deterministic: true,
                 fit_regions: true,
             };
+            // The directional defaults stay those of a 32000-sample leaf (the VMM's split and
+            // merge counts derive from it); only the kd-tree's leaf size is set apart.
             ffi::pglFieldArgumentsSetDefaults(
                 &mut arguments,
                 ffi::SPATIAL_STRUCTURE_KDTREE,
-                ffi::DIRECTIONAL_DISTRIBUTION_PARALLAX_AWARE_VMM,
+                directional,
                 true,
                 ffi::TREE_MAX_SAMPLE_PER_LEAF,
             );
+            let kd_tree = arguments
+                .spatial_structure_arguments
+                .cast::<ffi::KdTreeArguments>();
+            if kd_tree.is_null() {
+                ffi::pglReleaseDevice(device);
+                return Err("Open PGL set no kd-tree arguments".into());
+            }
+            (*kd_tree).max_samples = chosen.max_samples_per_leaf.max(1);
             let field = ffi::pglDeviceNewField(device, arguments);
             if field.is_null() {
                 ffi::pglReleaseDevice(device);

@@ -105,8 +105,16 @@ fn update_consumes_the_samples_and_gives_distributions_that_integrate_to_one() {
     assert_eq!(guide.pending_samples(), 0);
     assert_eq!(guide.iteration(), 1);
     let d = guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).unwrap();
-    // ∫ pdf dω over a 256 × 512 equal-area grid (z uniform, φ uniform): the mixture of von
-    // Mises–Fisher lobes integrates to one, up to the grid's error at its sharpest lobe.
+    // The mixture of von Mises–Fisher lobes integrates to one, up to the grid's error at its
+    // sharpest lobe.
+    let integral = integral_over_sphere(&d);
+    assert!((integral - 1.0).abs() < 0.02, "integral {integral}");
+    // The learned distribution favours the light's direction.
+    assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z));
+}
+
+/// `∫ pdf dω` over a 256 × 512 equal-area grid (z uniform, φ uniform).
+fn integral_over_sphere(d: &Distribution) -> f64 {
     let (nz, nphi) = (256, 512);
     let mut integral = 0.0f64;
     for i in 0..nz {
@@ -117,10 +125,35 @@ fn update_consumes_the_samples_and_gives_distributions_that_integrate_to_one() {
             integral += d.pdf(Vec3::new(r * phi.cos(), r * phi.sin(), z)) as f64;
         }
     }
-    integral *= 4.0 * std::f64::consts::PI / (nz * nphi) as f64;
-    assert!((integral - 1.0).abs() < 0.02, "integral {integral}");
-    // The learned distribution favours the light's direction.
-    assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z));
+    integral * 4.0 * std::f64::consts::PI / (nz * nphi) as f64
+}
+
+#[test]
+fn every_directional_distribution_and_leaf_size_trains_to_a_normalized_guide() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let records = records_around(Vec3::Z, false);
+    for directional in [
+        Directional::Vmm,
+        Directional::ParallaxAwareVmm,
+        Directional::QuadTree,
+    ] {
+        for max_samples_per_leaf in [2_000, usize::MAX / 4] {
+            let arguments = Arguments {
+                directional,
+                max_samples_per_leaf,
+            };
+            let mut guide = Guide::with_arguments(bounds, arguments, false, 1).unwrap();
+            for chunk in records.chunks(crate::integrator::MAX_DEPTH) {
+                guide.record(chunk);
+            }
+            guide.update();
+            let d = guide.distribution(Vec3::splat(0.5), Vec3::Z, 0.5).unwrap();
+            let integral = integral_over_sphere(&d);
+            let case = format!("{arguments:?}");
+            assert!((integral - 1.0).abs() < 0.02, "{case}: integral {integral}");
+            assert!(d.pdf(Vec3::Z) > 4.0 * d.pdf(-Vec3::Z), "{case}");
+        }
+    }
 }
 
 #[test]
