@@ -85,11 +85,14 @@ impl Protocol {
     }
 
     /// The density the protocol draws directions at `x` with: `uniform_share/4π` plus the rest
-    /// times the lobes' value over their total power.
+    /// times the lobes' value over their total power (uniform where the lobes carry none).
     pub fn sampling_pdf(&self, x: Vec3, d: Vec3) -> f32 {
+        let power = self.lobe_power(x);
+        if power <= 0.0 {
+            return INV_SPHERE_AREA;
+        }
         let lobes: f32 = self.light.lobes.iter().map(|l| l.eval(x, d)).sum();
-        self.uniform_share * INV_SPHERE_AREA
-            + (1.0 - self.uniform_share) * lobes / self.lobe_power(x)
+        self.uniform_share * INV_SPHERE_AREA + (1.0 - self.uniform_share) * lobes / power
     }
 
     fn lobe_power(&self, x: Vec3) -> f32 {
@@ -117,24 +120,22 @@ impl Protocol {
         let x = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
         let pick = rng.next_f32();
         let u = rng.next_vec2();
-        let d = if pick < self.uniform_share {
+        let power = self.lobe_power(x);
+        let d = if pick < self.uniform_share || power <= 0.0 {
             square_to_direction(u)
         } else {
-            // A lobe with probability proportional to its power.
-            let mut t = rng.next_f32() * self.lobe_power(x);
-            let last = self.light.lobes.len() - 1;
-            let lobe = self
-                .light
-                .lobes
+            // A lobe with probability proportional to its power (the last if rounding leaves
+            // `t` over).
+            let mut t = rng.next_f32() * power;
+            let lobes = &self.light.lobes;
+            let lobe = lobes
                 .iter()
-                .enumerate()
-                .find(|(i, l)| {
+                .find(|l| {
                     t -= l.power_at(x);
-                    t < 0.0 || *i == last
+                    t < 0.0
                 })
-                .map(|(_, l)| l)
-                .expect("the protocol's light has lobes");
-            lobe.sample(x, u)
+                .or(lobes.last());
+            lobe.map_or(square_to_direction(u), |l| l.sample(x, u))
         };
         Sample {
             position: x,
@@ -183,7 +184,7 @@ impl Protocol {
                 }
             }
         }
-        let second = second * f64::from(SPHERE_AREA) / f64::from(n * n);
+        let second = second * f64::from(SPHERE_AREA) / f64::from(n).powi(2);
         let mu = self.light.integral(x);
         second / (mu * mu) - 1.0
     }

@@ -9,7 +9,6 @@
 //!     [-- --positions 32 --resolution 1024 --seed 1]
 //! ```
 
-use glam::Vec3;
 use rayon::prelude::*;
 use sdguide::{GuidingConfig, GuidingField, LeafRule, SpatialSplit};
 use sdguide_lab::protocol::Protocol;
@@ -116,6 +115,7 @@ fn open_pgl_row(
     name: &str,
     arguments: sdguide_render::openpgl::Arguments,
 ) -> Row {
+    use glam::Vec3;
     use sdguide_lab::rng::Rng;
     use sdguide_render::openpgl::{Guide, Record};
     let start = Instant::now();
@@ -123,7 +123,7 @@ fn open_pgl_row(
     let mut guide = Guide::with_arguments(room_bounds(), arguments, false, threads)
         .expect("Open PGL builds its field");
     for k in 0..protocol.iterations {
-        protocol.samples(k).par_chunks(16).for_each(|chunk| {
+        protocol.samples(k).par_chunks(4096).for_each(|chunk| {
             let records: Vec<Record> = chunk
                 .iter()
                 .map(|s| Record {

@@ -217,10 +217,18 @@ impl Guide {
         unsafe { ffi::pglSampleStorageGetSizeSurface(self.storage) }
     }
 
-    /// Records the vertices of one finished path; callable from every render thread at once.
-    /// Vertices with zero radiance go in as Open PGL's zero-value samples, non-finite or
-    /// negative values and non-positive pdfs are dropped (Open PGL asserts on them).
+    /// Records the vertices of one finished path (or any batch of samples); callable from
+    /// every render thread at once. Vertices with zero radiance go in as Open PGL's zero-value
+    /// samples, non-finite or negative values and non-positive pdfs are dropped (Open PGL
+    /// asserts on them).
     pub fn record(&self, vertices: &[Record]) {
+        for path in vertices.chunks(crate::integrator::MAX_DEPTH) {
+            self.record_path(path);
+        }
+    }
+
+    /// [`record`](Self::record) of at most `MAX_DEPTH` vertices, staged on the stack.
+    fn record_path(&self, vertices: &[Record]) {
         const MAX: usize = crate::integrator::MAX_DEPTH;
         let mut samples = [ffi::SampleData::default(); MAX];
         let mut zeros = [ffi::ZeroValueSampleData::default(); MAX];

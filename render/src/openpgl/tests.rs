@@ -63,6 +63,16 @@ fn record_keeps_valid_samples_and_drops_what_open_pgl_would_assert_on() {
 }
 
 #[test]
+fn record_takes_batches_longer_than_a_path() {
+    let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    let guide = Guide::new(bounds, false, 1).unwrap();
+    let records = records_around(Vec3::Z, false);
+    let n = 3 * crate::integrator::MAX_DEPTH + 1;
+    guide.record(&records[..n]);
+    assert_eq!(guide.pending_samples(), n);
+}
+
+#[test]
 fn the_radiance_cache_learns_what_each_region_reflects_toward_each_direction() {
     let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
     let mut guide = Guide::new(bounds, false, 1).unwrap();
