@@ -72,6 +72,9 @@ struct Cli {
     /// the filtered one in the l2 masses (`none`: the filtered sums alone).
     #[arg(long, default_value_t = OrNone(GuidingConfig::default().filter_samples))]
     filter_samples: OrNone,
+    /// `n0`: samples' worth of weight a directional cell's masses give its parent's.
+    #[arg(long, default_value_t = GuidingConfig::default().prior_samples)]
+    prior_samples: f32,
     /// `c`: spatial leaves split past `c·sqrt(2^k)` samples in iteration `k`.
     #[arg(long, default_value_t = GuidingConfig::default().spatial_threshold)]
     spatial_threshold: f32,
@@ -130,6 +133,7 @@ pub struct Args {
     pub refinement: Refinement,
     pub directional_filter: DirectionalFilter,
     pub filter_samples: Option<f32>,
+    pub prior_samples: f32,
     pub spatial_threshold: f32,
     pub spatial_split: SpatialSplit,
     pub spatial_gain_threshold: f32,
@@ -213,6 +217,7 @@ impl Args {
             refinement: self.refinement,
             directional_filter: self.directional_filter,
             filter_samples: self.filter_samples,
+            prior_samples: self.prior_samples,
             spatial_threshold: self.spatial_threshold,
             spatial_split: self.spatial_split,
             spatial_gain_threshold: self.spatial_gain_threshold,
@@ -289,6 +294,7 @@ pub fn parse() -> Result<Args, String> {
             FilterArg::Nearest => DirectionalFilter::Nearest,
         },
         filter_samples: cli.filter_samples.0,
+        prior_samples: cli.prior_samples,
         spatial_threshold: cli.spatial_threshold,
         spatial_split: match cli.spatial_split {
             SpatialSplitArg::Count => SpatialSplit::Count,
