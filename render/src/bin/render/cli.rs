@@ -65,6 +65,10 @@ struct Cli {
     /// How directional cells split.
     #[arg(long, value_enum, default_value = "gain")]
     refinement: RefinementArg,
+    /// `τ` of `--refinement gain`: a directional cell splits where that lowers its tree's
+    /// `Σ sqrt(m)` by more than `τ` of it.
+    #[arg(long, default_value_t = GuidingConfig::default().gain_threshold)]
+    gain_threshold: f32,
     /// The directional filter.
     #[arg(long, value_enum, default_value = "box")]
     filter: FilterArg,
@@ -131,6 +135,7 @@ pub struct Args {
     /// (`None`: never).
     pub guide_cost: Option<f32>,
     pub refinement: Refinement,
+    pub gain_threshold: f32,
     pub directional_filter: DirectionalFilter,
     pub filter_samples: Option<f32>,
     pub prior_samples: f32,
@@ -215,6 +220,7 @@ impl Args {
     pub fn config(&self) -> GuidingConfig {
         GuidingConfig {
             refinement: self.refinement,
+            gain_threshold: self.gain_threshold,
             directional_filter: self.directional_filter,
             filter_samples: self.filter_samples,
             prior_samples: self.prior_samples,
@@ -288,6 +294,7 @@ pub fn parse() -> Result<Args, String> {
             RefinementArg::Gain => Refinement::VarianceGain,
             RefinementArg::Flux => Refinement::FluxShare,
         },
+        gain_threshold: cli.gain_threshold,
         directional_filter: match cli.filter {
             FilterArg::Box => DirectionalFilter::Box,
             FilterArg::Deferred => DirectionalFilter::DeferredBox,
