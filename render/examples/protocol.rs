@@ -16,32 +16,19 @@ use sdguide_lab::quality::cell_variances;
 use sdguide_lab::synthetic::{Workload, room_bounds};
 use std::time::Instant;
 
+/// The protocol's evaluation; the training is fixed by `Protocol::default()` and the seed.
+#[derive(clap::Parser)]
+#[command(about = "sdguide and Open PGL on the directional protocol")]
 struct Args {
-    positions: usize,
+    /// Held-out points the relative variance is averaged over.
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u64).range(2..=100_000))]
+    positions: u64,
+    /// Side of the equal-area grid the quadrature runs on.
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=8192))]
     resolution: u32,
+    /// Fixes the protocol's samples and held-out points.
+    #[arg(long, default_value_t = 1)]
     seed: u64,
-}
-
-fn args() -> Args {
-    let mut args = Args {
-        positions: 32,
-        resolution: 1024,
-        seed: 1,
-    };
-    let argv: Vec<String> = std::env::args().skip(1).collect();
-    for pair in argv.chunks(2) {
-        let value = pair.get(1).and_then(|v| v.parse::<u64>().ok());
-        match (pair[0].as_str(), value) {
-            ("--positions", Some(v)) if v > 0 => args.positions = v as usize,
-            ("--resolution", Some(v)) if (1..=8192).contains(&v) => args.resolution = v as u32,
-            ("--seed", Some(v)) => args.seed = v,
-            _ => {
-                eprintln!("usage: protocol [--positions N] [--resolution N] [--seed N]");
-                std::process::exit(2);
-            }
-        }
-    }
-    args
 }
 
 /// One row of the table: the mean relvar over the held-out points and its standard error,
@@ -84,7 +71,7 @@ fn sdguide_row(protocol: &Protocol, args: &Args, name: &str, config: GuidingConf
     };
     // The light is the same everywhere, so one point's oracle is its region's.
     let per_point: Vec<(f64, f64)> = protocol
-        .positions(args.positions)
+        .positions(args.positions as usize)
         .par_iter()
         .map(|&x| {
             let guide = field.distribution(x);
@@ -143,7 +130,7 @@ fn open_pgl_row(
         guide.update();
     }
     let seconds = start.elapsed().as_secs_f64();
-    let positions = protocol.positions(args.positions);
+    let positions = protocol.positions(args.positions as usize);
     let relvars: Vec<f64> = positions
         .par_iter()
         .enumerate()
@@ -169,7 +156,7 @@ fn open_pgl_row(
 }
 
 fn main() {
-    let args = args();
+    let args = <Args as clap::Parser>::parse();
     let protocol = Protocol {
         seed: args.seed,
         ..Protocol::default()
