@@ -108,10 +108,7 @@ impl Protocol {
             .flat_map_iter(|chunk| {
                 let mut rng = Rng::new(self.seed ^ mix(u64::from(k) << 40 | chunk));
                 let n = CHUNK.min(self.samples - chunk * CHUNK);
-                (0..n)
-                    .map(|_| self.draw(&mut rng))
-                    .collect::<Vec<_>>()
-                    .into_iter()
+                (0..n).map(move |_| self.draw(&mut rng))
             })
             .collect()
     }
